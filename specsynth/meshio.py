@@ -1,0 +1,142 @@
+"""The normalised mesh form every backend and the annotation engine read: binary PLY in metres.
+
+Properties: x y z (float32, metres), nx ny nz (float32), u v (float32, optional),
+red green blue alpha (uint8, optional); faces as triangle lists. Written by our own small writer so
+the layout is exact and stable (its bytes feed content hashes), read back with numpy only.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+class MeshFormatError(ValueError):
+    pass
+
+
+@dataclass(frozen=True, eq=False)
+class MeshData:
+    vertices: np.ndarray  # (N, 3) float32, metres
+    faces: np.ndarray  # (M, 3) int32
+    normals: np.ndarray | None = None  # (N, 3) float32, unit
+    uv: np.ndarray | None = None  # (N, 2) float32, OpenGL convention (v up)
+    colors: np.ndarray | None = None  # (N, 4) uint8, sRGB-encoded vertex colours
+
+    def validate(self, what: str) -> "MeshData":
+        v, f = self.vertices, self.faces
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise MeshFormatError(f"{what}: mesh has no vertices")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise MeshFormatError(f"{what}: mesh has no triangles")
+        if not np.isfinite(v).all():
+            raise MeshFormatError(f"{what}: mesh has NaN or infinite vertex coordinates")
+        if f.min() < 0 or f.max() >= len(v):
+            raise MeshFormatError(f"{what}: face indices out of range (0..{len(v) - 1})")
+        for name, a, cols in (("normals", self.normals, 3), ("uv", self.uv, 2), ("colors", self.colors, 4)):
+            if a is not None and a.shape != (len(v), cols):
+                raise MeshFormatError(f"{what}: {name} has shape {a.shape}, expected ({len(v)}, {cols})")
+        return self
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return np.stack([self.vertices.min(0), self.vertices.max(0)])
+
+
+def _vertex_dtype(mesh: MeshData) -> np.dtype:
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if mesh.normals is not None:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if mesh.uv is not None:
+        fields += [("u", "<f4"), ("v", "<f4")]
+    if mesh.colors is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
+    return np.dtype(fields)
+
+
+def mesh_bytes(mesh: MeshData, comments: tuple[str, ...] = ()) -> bytes:
+    dt = _vertex_dtype(mesh)
+    n = len(mesh.vertices)
+    vert = np.empty(n, dtype=dt)
+    vert["x"], vert["y"], vert["z"] = mesh.vertices.astype(np.float32).T
+    if mesh.normals is not None:
+        vert["nx"], vert["ny"], vert["nz"] = mesh.normals.astype(np.float32).T
+    if mesh.uv is not None:
+        vert["u"], vert["v"] = mesh.uv.astype(np.float32).T
+    if mesh.colors is not None:
+        c = mesh.colors.astype(np.uint8)
+        vert["red"], vert["green"], vert["blue"], vert["alpha"] = c.T
+    faces = np.empty(len(mesh.faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    faces["n"] = 3
+    faces["i"] = mesh.faces.astype(np.int32)
+    type_names = {"<f4": "float", "|u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {c}" for c in comments]
+    header.append(f"element vertex {n}")
+    header += [f"property {type_names[dt.fields[k][0].str]} {k}" for k in dt.names]
+    header += [f"element face {len(mesh.faces)}", "property list uchar int vertex_indices", "end_header"]
+    return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + faces.tobytes()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_mesh(path: Path, mesh: MeshData, comments: tuple[str, ...] = ()) -> None:
+    atomic_write_bytes(path, mesh_bytes(mesh, comments))
+
+
+def read_mesh(path: str | Path) -> MeshData:
+    """Read a PLY written by :func:`write_mesh`."""
+    path = Path(path)
+    data = path.read_bytes()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply") or end < 0:
+        raise MeshFormatError(f"{path}: not a PLY file")
+    lines = data[:end].decode("ascii").splitlines()
+    n_vert = n_face = 0
+    props: list[tuple[str, str]] = []
+    current = None
+    for line in lines:
+        parts = line.split()
+        if parts[:1] == ["element"]:
+            current = parts[1]
+            if current == "vertex":
+                n_vert = int(parts[2])
+            elif current == "face":
+                n_face = int(parts[2])
+        elif parts[:1] == ["property"] and current == "vertex":
+            props.append((parts[2], {"float": "<f4", "uchar": "u1"}[parts[1]]))
+    if "binary_little_endian" not in lines[1]:
+        raise MeshFormatError(f"{path}: expected binary_little_endian PLY")
+    body = data[end + len(b"end_header\n") :]
+    vdt = np.dtype(props)
+    vert = np.frombuffer(body, dtype=vdt, count=n_vert)
+    fdt = np.dtype([("n", "u1"), ("i", "<i4", (3,))])
+    faces = np.frombuffer(body, dtype=fdt, count=n_face, offset=vdt.itemsize * n_vert)
+    names = vdt.names
+
+    def stack(*keys, dtype=np.float32):
+        return np.stack([vert[k] for k in keys], axis=1).astype(dtype) if keys[0] in names else None
+
+    return MeshData(
+        vertices=stack("x", "y", "z"),
+        faces=faces["i"].astype(np.int32),
+        normals=stack("nx", "ny", "nz"),
+        uv=stack("u", "v"),
+        colors=stack("red", "green", "blue", "alpha", dtype=np.uint8),
+    )

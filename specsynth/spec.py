@@ -1,0 +1,375 @@
+"""The dataset spec: pydantic models, the single source of truth.
+
+Everything a build reads from the user comes through :class:`DatasetSpec`. The JSON Schema in
+``schemas/`` is generated from these models (``specsynth schema``) and a test keeps it in sync.
+Units are part of every field description: metres, degrees, pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    field_validator,
+    model_validator,
+)
+
+SPEC_VERSION = 1
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def _range(lo_min: float | None = None, hi_max: float | None = None, positive: bool = False):
+    """Validator for a ``[min, max]`` pair: finite, ordered, within optional bounds."""
+
+    def check(v: tuple[float, float]) -> tuple[float, float]:
+        lo, hi = v
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise ValueError("range bounds must be finite")
+        if lo > hi:
+            raise ValueError(f"min ({lo}) must be <= max ({hi})")
+        if lo_min is not None and lo < lo_min:
+            raise ValueError(f"min ({lo}) must be >= {lo_min}")
+        if hi_max is not None and hi > hi_max:
+            raise ValueError(f"max ({hi}) must be <= {hi_max}")
+        if positive and lo <= 0:
+            raise ValueError(f"min ({lo}) must be > 0")
+        return v
+
+    return check
+
+
+def FloatRange(lo_min: float | None = None, hi_max: float | None = None, positive: bool = False):
+    return Annotated[tuple[float, float], AfterValidator(_range(lo_min, hi_max, positive))]
+
+
+def IntRange(lo_min: int = 0):
+    return Annotated[tuple[int, int], AfterValidator(lambda v: _int_range(v, lo_min))]
+
+
+# --------------------------------------------------------------------------- objects
+
+
+class Material(Strict):
+    """Principled material override (the paper's specular / metallic / roughness)."""
+
+    color: tuple[float, float, float] | None = Field(
+        None, description="Linear base colour in [0,1]; replaces vertex colours and texture when set."
+    )
+    use_vertex_colors: bool = Field(True, description="Use the mesh's vertex colours when it has them.")
+    texture: str | None = Field(None, description="Path to a base-colour texture (needs UV coordinates).")
+    specular: float = Field(0.5, ge=0, le=1, description="Specular level (dielectric F0 = 0.08 * specular).")
+    metallic: float = Field(0.0, ge=0, le=1)
+    roughness: float = Field(0.5, ge=0, le=1)
+
+    @field_validator("color")
+    @classmethod
+    def _color_range(cls, v):
+        if v is not None and not all(0.0 <= c <= 1.0 for c in v):
+            raise ValueError("colour components must be in [0, 1]")
+        return v
+
+
+class MeshObject(Strict):
+    path: str = Field(description="Mesh file (PLY/OBJ/GLB/STL), relative to the spec file.")
+    unit: Literal["m", "cm", "mm"] = Field(description="Length unit of the mesh file.")
+    obj_id: int | None = Field(None, ge=1, description="Object id; default: next free id.")
+    name: str | None = None
+
+
+class BuiltinObject(Strict):
+    name: str = Field(description="pybullet_data asset, e.g. duck, teddy, mug, random_urdfs/000.")
+    obj_id: int | None = Field(None, ge=1, description="Object id; default: next free id.")
+
+
+class Objects(Strict):
+    """Which object models are dropped, and how many instances of each."""
+
+    path: str | None = Field(
+        None,
+        description="BOP models folder (models_info.json + obj_XXXXXX.ply in millimetres). "
+        "Supports ${ENV_VAR} expansion.",
+    )
+    ids: list[int] | None = Field(None, description="Subset of obj ids of the BOP folder; default all.")
+    builtin: list[Union[str, BuiltinObject]] = Field(
+        default_factory=list, description="Built-in objects from pybullet_data by name."
+    )
+    meshes: list[MeshObject] = Field(default_factory=list)
+    instances: IntRange(0) = Field((1, 1), description="Instances per model per arrangement, [min, max].")
+    orientation: Literal["canonical", "random"] = Field(
+        "canonical", description="canonical: upright as modelled (LM); random: uniform rotation (RU-APC)."
+    )
+    models_per_arrangement: IntRange(1) | None = Field(
+        None, description="Draw this many distinct models per arrangement; default all."
+    )
+    materials: dict[str, Material] = Field(
+        default_factory=dict,
+        description="Material overrides keyed by 'default', an obj id ('5') or a built-in name ('duck').",
+    )
+
+    @model_validator(mode="after")
+    def _some_objects(self):
+        if self.path is None and not self.builtin and not self.meshes:
+            raise ValueError("no objects: give a BOP models 'path', 'builtin' names or 'meshes'")
+        if self.ids is not None and self.path is None:
+            raise ValueError("'ids' selects from a BOP folder: set 'path' too")
+        return self
+
+
+def _int_range(v: tuple[int, int], lo_min: int) -> tuple[int, int]:
+    lo, hi = v
+    if lo > hi:
+        raise ValueError(f"min ({lo}) must be <= max ({hi})")
+    if lo < lo_min:
+        raise ValueError(f"min ({lo}) must be >= {lo_min}")
+    return v
+
+
+# --------------------------------------------------------------------------- scenes
+
+
+class SceneRef(Strict):
+    name: str | None = Field(None, description="Built-in scene name (see `specsynth scenes`).")
+    file: str | None = Field(None, description="Scene file (YAML/JSON), relative to the spec file.")
+    stages: list[str] | None = Field(None, description="Stages to use, by name; default all.")
+    weight: float = Field(1.0, gt=0, description="Relative probability of choosing this scene.")
+
+    @model_validator(mode="after")
+    def _one_source(self):
+        if (self.name is None) == (self.file is None):
+            raise ValueError("give exactly one of 'name' (built-in scene) or 'file'")
+        return self
+
+    @property
+    def ref(self) -> str:
+        return self.name if self.name is not None else f"file:{self.file}"
+
+
+# --------------------------------------------------------------------------- physics / arrangements
+
+
+class Physics(Strict):
+    timestep: float = Field(1 / 240, gt=0, le=0.05, description="Simulation step in seconds.")
+    max_time: float = Field(8.0, gt=0, le=120, description="Simulated seconds before giving up settling.")
+    linear_threshold: float = Field(0.01, gt=0, description="Settled when |v| below this (m/s) ...")
+    angular_threshold: float = Field(0.1, gt=0, description="... and |omega| below this (rad/s) ...")
+    hold_time: float = Field(0.25, ge=0, description="... for this many simulated seconds.")
+    penetration_tolerance: float = Field(0.002, gt=0, description="Max allowed penetration depth (m).")
+    on_invalid: Literal["redrop", "remove"] = Field(
+        "redrop", description="What happens to an object that left the stage or penetrates."
+    )
+    max_redrops: int = Field(3, ge=0, le=20)
+    collision: Literal["convex_hull", "decomposition"] = Field(
+        "convex_hull", description="Collision shapes: one convex hull or a convex decomposition (coacd)."
+    )
+    friction: float = Field(0.6, ge=0, le=5)
+    restitution: float = Field(0.1, ge=0, le=1)
+
+
+class Arrangements(Strict):
+    count: int = Field(10, ge=1, le=10_000_000, description="Number of arrangements (physics drops).")
+    drop_height: FloatRange(0.0, 10.0) = Field((0.05, 0.5), description="Initial height above the stage, metres.")
+    physics: Physics = Physics()
+
+
+
+# --------------------------------------------------------------------------- cameras
+
+
+class Intrinsics(Strict):
+    """Pinhole camera; defaults are LM-O's (BOP)."""
+
+    width: int = Field(640, ge=8, le=16384, description="Image width, pixels.")
+    height: int = Field(480, ge=8, le=16384, description="Image height, pixels.")
+    fx: float = Field(572.4114, gt=0)
+    fy: float = Field(573.57043, gt=0)
+    cx: float = Field(325.2611)
+    cy: float = Field(242.04899)
+    clip: FloatRange(positive=True) = Field((0.01, 100.0), description="Near and far clip, metres.")
+
+
+
+class Cameras(Strict):
+    per_arrangement: int = Field(5, ge=1, le=100_000, description="Cameras per arrangement.")
+    azimuth: FloatRange(-720, 720) = Field((0.0, 360.0), description="Azimuth around the focused object, degrees.")
+    elevation: FloatRange(-90, 90) = Field((10.0, 80.0), description="Elevation above the stage plane, degrees.")
+    distance: FloatRange(positive=True, hi_max=1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres.")
+    inplane: FloatRange(-360, 360) = Field((0.0, 0.0), description="In-plane rotation about the optical axis, degrees.")
+    max_tries: int = Field(10, ge=1, le=1000, description="Camera resamples before a view is dropped.")
+
+
+
+class Visibility(Strict):
+    threshold: float = Field(0.3, ge=0, le=1, description="Min visible fraction of the focused object.")
+    delta: float = Field(0.005, gt=0, le=1, description="Depth tolerance for visibility (BOP), metres.")
+
+
+# --------------------------------------------------------------------------- quality
+
+
+class QualityPreset(Strict):
+    """The paper's Arnold parameters (supplement table); backends map them to their own settings."""
+
+    aa: int = Field(ge=1, le=4096, description="Camera rays per pixel (Arnold AA samples).")
+    diffuse_rays: int = Field(ge=1, le=4096)
+    specular_rays: int = Field(ge=1, le=4096)
+    diffuse_depth: int = Field(ge=0, le=64)
+    specular_depth: int = Field(ge=0, le=64)
+    max_depth: int = Field(ge=1, le=128)
+
+
+class QualityOverride(Strict):
+    aa: int | None = Field(None, ge=1, le=4096)
+    diffuse_rays: int | None = Field(None, ge=1, le=4096)
+    specular_rays: int | None = Field(None, ge=1, le=4096)
+    diffuse_depth: int | None = Field(None, ge=0, le=64)
+    specular_depth: int | None = Field(None, ge=0, le=64)
+    max_depth: int | None = Field(None, ge=1, le=128)
+
+
+PAPER_PRESETS: dict[str, QualityPreset] = {
+    "low": QualityPreset(aa=1, diffuse_rays=1, specular_rays=1, diffuse_depth=1, specular_depth=1, max_depth=2),
+    "medium": QualityPreset(aa=9, diffuse_rays=36, specular_rays=36, diffuse_depth=3, specular_depth=2, max_depth=3),
+    "high": QualityPreset(aa=25, diffuse_rays=225, specular_rays=100, diffuse_depth=3, specular_depth=3, max_depth=4),
+}
+
+
+class Quality(Strict):
+    level: Literal["low", "medium", "high"] = "low"
+    presets: dict[Literal["low", "medium", "high"], QualityOverride] = Field(
+        default_factory=dict, description="Overrides of the paper's preset numbers, per level."
+    )
+    clamp: float | None = Field(None, gt=0, description="Clamp indirect sample radiance (fireflies).")
+
+    def resolved(self) -> QualityPreset:
+        base = PAPER_PRESETS[self.level].model_dump()
+        over = self.presets.get(self.level)
+        if over is not None:
+            base.update({k: v for k, v in over.model_dump().items() if v is not None})
+        return QualityPreset(**base)
+
+
+# --------------------------------------------------------------------------- backends
+
+
+class CyclesOptions(Strict):
+    name: Literal["cycles"]
+    threads: int = Field(0, ge=0, le=1024, description="Render threads; 0 = one per core.")
+    denoise: bool = Field(False, description="OpenImageDenoise on the beauty pass.")
+    adaptive_threshold: float | None = Field(None, gt=0, description="Adaptive sampling noise threshold.")
+    samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
+
+
+class MitsubaOptions(Strict):
+    name: Literal["mitsuba"]
+    variant: Literal["auto", "llvm_ad_rgb", "scalar_rgb", "cuda_ad_rgb"] = "auto"
+    sampler: Literal["independent", "ldsampler", "stratified"] = "independent"
+    samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
+
+
+class Augment(Strict):
+    brightness: float = Field(0.0, ge=0, le=1, description="Max relative brightness change.")
+    contrast: float = Field(0.0, ge=0, le=1)
+    hue: float = Field(0.0, ge=0, le=0.5, description="Max hue shift, fraction of the colour wheel.")
+    saturation: float = Field(0.0, ge=0, le=1)
+    noise_std: float = Field(0.0, ge=0, le=0.5, description="Gaussian noise std, in [0,1] intensity.")
+    blur_sigma: FloatRange(0.0, 50.0) = Field((0.0, 0.0), description="Gaussian blur sigma range, pixels.")
+
+
+class PhotoOptions(Strict):
+    name: Literal["photo"]
+    backgrounds: str = Field(
+        "builtin", description="'builtin' (scikit-image photos + HDRI crops) or a folder of photographs."
+    )
+    lights: IntRange(0) = Field((1, 3), description="Random point/directional lights per image.")
+    ambient: FloatRange(0.0, 10.0) = Field((0.1, 0.4), description="Ambient light intensity range.")
+    augment: Augment = Augment()
+
+
+class PluginOptions(Strict):
+    """Any other installed backend plugin; its options are passed through as they are."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    name: str
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+KNOWN_BACKENDS = ("cycles", "mitsuba", "photo")
+
+
+def _backend_tag(v: Any) -> str:
+    name = v.get("name") if isinstance(v, dict) else getattr(v, "name", None)
+    return name if name in KNOWN_BACKENDS else "plugin"
+
+
+Backend = Annotated[
+    Union[
+        Annotated[CyclesOptions, Tag("cycles")],
+        Annotated[MitsubaOptions, Tag("mitsuba")],
+        Annotated[PhotoOptions, Tag("photo")],
+        Annotated[PluginOptions, Tag("plugin")],
+    ],
+    Discriminator(_backend_tag),
+]
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+class Outputs(Strict):
+    bop: bool = True
+    parquet: bool = True
+    coco: bool = True
+    image_format: Literal["jpg", "png"] = "jpg"
+    jpeg_quality: int = Field(95, ge=1, le=100)
+    depth: bool = True
+    depth_scale: float | Literal["auto"] = Field(
+        0.1, description="BOP depth scale: uint16 value * depth_scale = millimetres; 'auto' fits the range."
+    )
+    masks: bool = True
+    exr: bool = Field(False, description="Also write the linear beauty pass as OpenEXR.")
+    chunk_size: int = Field(1000, ge=1, le=100_000, description="Images per BOP chunk folder.")
+
+    @field_validator("depth_scale")
+    @classmethod
+    def _ds(cls, v):
+        if v != "auto" and not (v > 0):
+            raise ValueError("depth_scale must be > 0 or 'auto'")
+        return v
+
+
+# --------------------------------------------------------------------------- the spec
+
+
+class DatasetSpec(Strict):
+    """A synthetic dataset: objects dropped with physics onto stages of scenes, seen by cameras."""
+
+    version: Literal[1] = Field(SPEC_VERSION, description="Spec language version.")
+    name: str = Field(pattern=r"^[A-Za-z0-9_.\-]+$", description="Dataset name.")
+    seed: int = Field(0, ge=0, lt=2**63, description="Root seed; every job seed derives from it.")
+    split: str = Field("train_pbr", pattern=r"^[A-Za-z0-9_\-]+$", description="BOP split name.")
+    intrinsics: Intrinsics = Intrinsics()
+    objects: Objects
+    scenes: list[SceneRef] = Field(min_length=1)
+    arrangements: Arrangements = Arrangements()
+    cameras: Cameras = Cameras()
+    visibility: Visibility = Visibility()
+    quality: Quality = Quality()
+    backend: Backend = Field(description="Render backend and its options, selected by 'name'.")
+    outputs: Outputs = Outputs()
+
+
+def json_schema() -> dict:
+    schema = DatasetSpec.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "specsynth dataset spec"
+    return schema
