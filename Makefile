@@ -1,0 +1,44 @@
+# specsynth: `make demo` and `make test` install everything they need on a fresh Debian machine.
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+JOBS   ?= 2
+export PYOPENGL_PLATFORM ?= egl
+
+.PHONY: install demo test test-slow test-all bench schema lint clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/install-system-deps.sh
+	./scripts/install-system-deps.sh
+	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (Python 3.11)"; exit 1; }
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e '.[all]'
+	touch $(STAMP)
+
+demo: install
+	$(BIN)/specsynth build specs/demo.yaml --out out/demo --jobs $(JOBS)
+	$(BIN)/specsynth build specs/demo_bl.yaml --out out/demo_bl --jobs $(JOBS)
+
+# The default suite: everything but the slow PBR renders (< ~20 min on 2 cores).
+test: install
+	$(BIN)/lint-imports
+	$(BIN)/pytest -q -m "not slow" -p no:cacheprovider
+
+test-slow: install
+	$(BIN)/pytest -q -m "slow" -p no:cacheprovider
+
+test-all: install
+	$(BIN)/lint-imports
+	$(BIN)/pytest -q -p no:cacheprovider
+
+bench: install
+	$(BIN)/specsynth bench specs/demo.yaml --out bench-out
+
+schema: install
+	$(BIN)/specsynth schema
+
+clean:
+	rm -rf out bench-out .pytest_cache

@@ -1,0 +1,339 @@
+"""Running a compiled job graph: plan, build, manifest, lock and diff.
+
+A build holds an exclusive lock on its output folder, runs only jobs whose content key has no
+finished result in the store, then merges the records into BOP / Parquet / COCO files.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import time
+from concurrent.futures import Future
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from . import keys
+from .backend_api import load_executor
+from .compiler import STAGES, JobGraph
+from .records import ArrangementRecord, ImageRecord, ViewRecord
+from .store import Store, write_json
+
+# Rough seconds per job on a 2-core machine (../shared/measurements.md), for `plan` estimates only.
+EST_SECONDS = {"arrange": 0.5, "view": 0.08}
+EST_RENDER = {  # seconds = a + b * samples
+    "cycles": (1.4, 0.458),
+    "mitsuba": (0.11, 0.122),
+    "photo": (0.05, 0.0),
+}
+
+
+class BuildLocked(RuntimeError):
+    pass
+
+
+@contextmanager
+def output_lock(out: Path) -> Iterator[None]:
+    """Refuse a second concurrent build into the same folder instead of interleaving them."""
+    meta = out / ".specsynth"
+    meta.mkdir(parents=True, exist_ok=True)
+    fd = os.open(meta / "build.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            other = os.pread(fd, 64, 0).decode(errors="replace").strip()
+            raise BuildLocked(f"another build (pid {other or '?'}) is writing into {out}; wait for it or use another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)
+
+
+@dataclass
+class StageStats:
+    total: int = 0
+    cached: int = 0
+    ran: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class BuildSummary:
+    out: str
+    backend: str
+    stages: dict[str, StageStats] = field(default_factory=lambda: {s: StageStats() for s in (*STAGES, "merge")})
+    views_accepted: int = 0
+    views_dropped: int = 0
+    cameras_rejected: int = 0
+    rejected_seconds: float = 0.0
+    objects_removed: int = 0
+    objects_redropped: int = 0
+    images: int = 0
+    instances: int = 0
+    failures: list[dict[str, str]] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        d = self.__dict__.copy()
+        d["stages"] = {k: v.__dict__ for k, v in self.stages.items()}
+        return d
+
+
+def _samples(graph: JobGraph) -> int:
+    q = graph.spec.quality.resolved()
+    return q.aa * max(1, q.diffuse_rays // max(1, q.aa))
+
+
+def plan(graph: JobGraph, out: Path) -> dict[str, Any]:
+    """Per stage: jobs that exist, are cached, would run, with an estimated cost in seconds."""
+    store = Store(out)
+    done = {s: store.keys(s) for s in STAGES}
+    counts = {s: {"jobs": 0, "cached": 0, "to_run": 0} for s in STAGES}
+    for job in graph.jobs():
+        c = counts[job.stage]
+        c["jobs"] += 1
+        if job.key in done[job.stage]:
+            c["cached"] += 1
+        else:
+            c["to_run"] += 1
+    a, b = EST_RENDER.get(graph.spec.backend.name, (1.0, 0.1))
+    per = {"arrange": EST_SECONDS["arrange"], "view": EST_SECONDS["view"], "render": a + b * _samples(graph)}
+    for s in STAGES:
+        counts[s]["est_seconds"] = round(counts[s]["to_run"] * per[s], 1)
+    return {
+        "spec": str(graph.spec_path),
+        "out": str(out),
+        "backend": graph.backend,
+        "stages": counts,
+        "note": "render counts are upper bounds: cameras rejected by the visibility pre-check create no render job",
+    }
+
+
+def _progress(console):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("[bold]{task.description:<8}"), BarColumn(), MofNCompleteColumn(),
+        TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+        console=console, transient=False, disable=console is None,
+    )
+
+
+def _drain(futures: list[tuple[Future, Any]], on_done: Callable[[Any, Any], None], on_error: Callable[[Any, BaseException], None]):
+    for fut, meta in futures:
+        try:
+            on_done(meta, fut.result())
+        except Exception as e:  # one failed job must not stop the build
+            on_error(meta, e)
+
+
+def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
+          console=None) -> BuildSummary:
+    from .tasks import BuildContext, task_arrange, task_renders, task_views
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = BuildSummary(out=str(out), backend=graph.backend)
+    with output_lock(out):
+        store = Store(out)
+        store.clean_tmp()
+        threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
+        ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads)
+        ex = load_executor(executor)(ctx, jobs=jobs, address=address)
+        arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
+
+        def fail(stage: str):
+            def handler(meta, e):
+                summary.stages[stage].failed += 1
+                summary.failures.append({"stage": stage, "job": str(meta), "error": f"{type(e).__name__}: {e}"})
+            return handler
+
+        try:
+            with _progress(console) as prog:
+                # -------------------------------------------------- arrange
+                t0 = time.perf_counter()
+                st = summary.stages["arrange"]
+                st.total = len(arr_jobs)
+                todo = [a for a, _, _ in arr_jobs if not store.has("arrange", a.key)]
+                st.cached = st.total - len(todo)
+                task = prog.add_task("arrange", total=st.total, completed=st.cached)
+                futs = [(ex.submit(task_arrange, a), a.id) for a in todo]
+
+                def arr_done(meta, res):
+                    st.ran += 1
+                    prog.advance(task)
+
+                _drain(futs, arr_done, fail("arrange"))
+                st.seconds = time.perf_counter() - t0
+
+                # -------------------------------------------------- view
+                t0 = time.perf_counter()
+                sv = summary.stages["view"]
+                task = prog.add_task("view", total=graph.n_views)
+                futs = []
+                for a, views, _ in arr_jobs:
+                    sv.total += len(views)
+                    if not store.has("arrange", a.key):
+                        continue
+                    todo_v = [v for v in views if not store.has("view", v.key)]
+                    sv.cached += len(views) - len(todo_v)
+                    prog.advance(task, len(views) - len(todo_v))
+                    if todo_v:
+                        futs.append((ex.submit(task_views, a.key, todo_v), (a.id, len(todo_v))))
+
+                def views_done(meta, res):
+                    sv.ran += len(res)
+                    prog.advance(task, len(res))
+
+                def views_failed(meta, e):
+                    sv.failed += meta[1]
+                    summary.failures.append({"stage": "view", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
+
+                _drain(futs, views_done, views_failed)
+                sv.seconds = time.perf_counter() - t0
+
+                # -------------------------------------------------- render
+                t0 = time.perf_counter()
+                sr = summary.stages["render"]
+                pending: list[tuple[str, list]] = []
+                for a, views, renders in arr_jobs:
+                    todo_r = []
+                    for v, r in zip(views, renders):
+                        if not store.has("view", v.key):
+                            continue
+                        vrec = store.load("view", v.key)
+                        summary.cameras_rejected += vrec["tries"] - (1 if vrec["accepted"] else 0)
+                        summary.rejected_seconds += vrec["rejected_seconds"]
+                        if not vrec["accepted"]:
+                            summary.views_dropped += 1
+                            continue
+                        summary.views_accepted += 1
+                        sr.total += 1
+                        if store.has("render", r.key):
+                            sr.cached += 1
+                        else:
+                            todo_r.append((v, r))
+                    if todo_r:
+                        pending.append((a.key, todo_r))
+                task = prog.add_task("render", total=sr.total, completed=sr.cached)
+                futs = [(ex.submit(task_renders, key, pairs), (pairs[0][1].id.rsplit("/", 2)[0], len(pairs))) for key, pairs in pending]
+
+                def renders_done(meta, res):
+                    sr.ran += len(res)
+                    prog.advance(task, len(res))
+
+                def renders_failed(meta, e):
+                    sr.failed += meta[1]
+                    summary.failures.append({"stage": "render", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
+
+                _drain(futs, renders_done, renders_failed)
+                sr.seconds = time.perf_counter() - t0
+        finally:
+            ex.shutdown()
+
+        # ------------------------------------------------------ merge
+        t0 = time.perf_counter()
+        images = []
+        for a, views, renders in arr_jobs:
+            if store.has("arrange", a.key):
+                arec = store.load("arrange", a.key)
+                summary.objects_removed += arec["removed"]
+                summary.objects_redropped += arec["redropped"]
+            for r in renders:
+                if store.has("render", r.key):
+                    images.append((ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)))
+        summary.images = len(images)
+        summary.instances = sum(len(im.instances) for im, _ in images)
+        from .assets import resolve_objects
+        from .writers import write_outputs
+
+        models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
+        write_outputs(out, graph.spec, images, models)
+        write_manifest(graph, out, arr_jobs)
+        summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
+        write_json(out / "failures.json", summary.failures)
+        write_json(out / ".specsynth" / "summary.json", summary.to_json())
+    return summary
+
+
+def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:
+    jobs: dict[str, dict[str, str]] = {s: {} for s in STAGES}
+    upstream: dict[str, str] = {}
+    for a, views, renders in arr_jobs:
+        jobs["arrange"][a.id] = a.key
+        for v, r in zip(views, renders):
+            jobs["view"][v.id] = v.key
+            jobs["render"][r.id] = r.key
+    manifest = {
+        "specsynth": metadata.version("specsynth"),
+        "spec": str(graph.spec_path),
+        "spec_hash": keys.digest(graph.spec.model_dump(mode="json")),
+        "backend": graph.backend,
+        "stage_inputs": graph.stage_inputs,
+        "stage_digests": graph.stage_digests,
+        "jobs": jobs,
+    }
+    write_json(out / ".specsynth" / "manifest.json", manifest, indent=None)
+    lock = {
+        "seed": graph.spec.seed,
+        "seed_rule": "numpy SeedSequence(entropy=seed, spawn_key=sha256(job id) as uint32 words)",
+        "assets": graph.asset_hashes,
+        "arrangement_seeds": {a.id: a.seed for a, _, _ in arr_jobs},
+        "stage_digests": graph.stage_digests,
+    }
+    write_json(out / "specsynth.lock", lock)
+
+
+# ---------------------------------------------------------------------- diff
+
+
+def manifest_of(graph: JobGraph) -> dict[str, Any]:
+    """The manifest a build of ``graph`` would write (for diffing specs without building)."""
+    jobs: dict[str, dict[str, str]] = {s: {} for s in STAGES}
+    for j in graph.jobs():
+        jobs[j.stage][j.id] = j.key
+    return {"stage_inputs": graph.stage_inputs, "jobs": jobs, "backend": graph.backend}
+
+
+def read_manifest(out: Path) -> dict[str, Any]:
+    p = Path(out) / ".specsynth" / "manifest.json"
+    if not p.is_file():
+        raise FileNotFoundError(f"{out}: not a specsynth output folder (no .specsynth/manifest.json)")
+    return json.loads(p.read_bytes())
+
+
+def diff(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """Per stage added/removed/modified/unchanged, each modification attributed to its causes."""
+    result: dict[str, Any] = {}
+    upstream_of = {"view": "arrange", "render": "view"}
+    causes_by_stage: dict[str, list[str]] = {}
+    for stage in STAGES:
+        ia, ib = a["stage_inputs"].get(stage, {}), b["stage_inputs"].get(stage, {})
+        changed = sorted(k for k in set(ia) | set(ib) if ia.get(k) != ib.get(k))
+        ja, jb = a["jobs"].get(stage, {}), b["jobs"].get(stage, {})
+        added = sorted(set(jb) - set(ja))
+        removed = sorted(set(ja) - set(jb))
+        common = set(ja) & set(jb)
+        modified = sorted(j for j in common if ja[j] != jb[j])
+        causes = list(changed)
+        if modified and stage in upstream_of and result.get(upstream_of[stage], {}).get("modified"):
+            causes.append(f"upstream:{upstream_of[stage]}")
+        causes_by_stage[stage] = causes
+        result[stage] = {
+            "added": len(added),
+            "removed": len(removed),
+            "modified": len(modified),
+            "unchanged": len(common) - len(modified),
+            "causes": causes if (modified or added or removed) else [],
+            "changed_inputs": {k: [ia.get(k), ib.get(k)] for k in changed},
+        }
+    result["identical"] = all(
+        result[s]["added"] == result[s]["removed"] == result[s]["modified"] == 0 for s in STAGES
+    )
+    return result

@@ -1,0 +1,247 @@
+"""Command line: validate, schema, compile, plan, build, diff, scenes.
+
+Every user error (a bad spec, a missing asset, a locked output folder, a missing plugin) prints a
+located message and exits with status 2, never a traceback (use --debug for one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from .yamlio import SpecError, load_spec
+
+SCHEMA_PATH = Path("schemas") / "dataset-spec.schema.json"
+
+
+def _err_console() -> Console:
+    return Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def _compile(spec_path: str, overrides: list[str]):
+    from .compiler import compile_spec
+
+    loaded = load_spec(spec_path, overrides)
+    return loaded, compile_spec(loaded)
+
+
+def cmd_validate(args) -> int:
+    from .compiler import compile_spec
+
+    status = 0
+    for path in args.specs:
+        try:
+            compile_spec(load_spec(path, args.set))
+            print(f"{path}: ok")
+        except SpecError as e:
+            for p in e.problems:
+                print(str(p), file=sys.stderr)
+            status = 2
+    return status
+
+
+def cmd_schema(args) -> int:
+    from .spec import json_schema
+
+    text = json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
+    if args.stdout:
+        sys.stdout.write(text)
+        return 0
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not out.exists() or out.read_text() != text:
+        out.write_text(text)
+        print(f"wrote {out}")
+    return 0
+
+
+def cmd_compile(args) -> int:
+    _, graph = _compile(args.spec, args.set)
+    summary = graph.summary()
+    if args.jobs_out:
+        with open(args.jobs_out, "w") as f:
+            for j in graph.jobs():
+                f.write(json.dumps({"stage": j.stage, "id": j.id, "key": j.key, "seed": j.seed, "upstream": j.upstream}) + "\n")
+        summary["jobs_file"] = args.jobs_out
+    print(json.dumps(summary, indent=2, sort_keys=True))
+    return 0
+
+
+def cmd_plan(args) -> int:
+    from .build import plan
+
+    _, graph = _compile(args.spec, args.set)
+    p = plan(graph, Path(args.out))
+    if args.json:
+        print(json.dumps(p, indent=2, sort_keys=True))
+        return 0
+    t = Table(title=f"plan: {args.spec} -> {args.out}")
+    for col in ("stage", "jobs", "cached", "to run", "est. seconds"):
+        t.add_column(col, justify="right" if col != "stage" else "left")
+    for s, c in p["stages"].items():
+        t.add_row(s, str(c["jobs"]), str(c["cached"]), str(c["to_run"]), f"{c['est_seconds']:.0f}")
+    Console().print(t)
+    Console().print(f"[dim]{p['note']}[/dim]")
+    return 0
+
+
+def _summary_table(s) -> Table:
+    t = Table(title=f"build summary: {s.out}  [{s.backend}]")
+    for col in ("stage", "jobs", "cached", "ran", "failed", "seconds"):
+        t.add_column(col, justify="right" if col != "stage" else "left")
+    for name, st in s.stages.items():
+        t.add_row(name, str(st.total), str(st.cached), str(st.ran), str(st.failed), f"{st.seconds:.1f}")
+    return t
+
+
+def cmd_build(args) -> int:
+    from .build import build
+
+    _, graph = _compile(args.spec, args.set)
+    console = Console(stderr=True) if not args.quiet else None
+    executor, address = args.executor, None
+    if "://" in executor:
+        executor, address = executor.split("://", 1)
+    s = build(graph, Path(args.out), executor=executor, jobs=args.jobs, address=address, console=console)
+    out = Console()
+    out.print(_summary_table(s))
+    out.print(
+        f"images written: {s.images}   instances: {s.instances}   views accepted: {s.views_accepted}   "
+        f"views dropped: {s.views_dropped}\ncameras rejected by visibility: {s.cameras_rejected} "
+        f"({s.rejected_seconds:.2f} s spent on them)   objects removed by physics: {s.objects_removed}   "
+        f"re-dropped: {s.objects_redropped}"
+    )
+    if s.failures:
+        out.print(f"[red]{len(s.failures)} failed job group(s); see {Path(args.out) / 'failures.json'}[/red]")
+        for f in s.failures[:10]:
+            out.print(f"  {f['stage']} {f['job']}: {f['error']}")
+        return 1
+    return 0
+
+
+def cmd_diff(args) -> int:
+    from .build import diff, manifest_of, read_manifest
+
+    def side(x: str):
+        p = Path(x)
+        if p.is_dir():
+            return read_manifest(p)
+        _, graph = _compile(x, args.set)
+        return manifest_of(graph)
+
+    d = diff(side(args.a), side(args.b))
+    if args.json:
+        print(json.dumps(d, indent=2, sort_keys=True))
+        return 0
+    t = Table(title=f"diff {args.a} -> {args.b}")
+    for col in ("stage", "added", "removed", "modified", "unchanged", "because of"):
+        t.add_column(col)
+    for s in ("arrange", "view", "render"):
+        r = d[s]
+        t.add_row(s, str(r["added"]), str(r["removed"]), str(r["modified"]), str(r["unchanged"]), ", ".join(r["causes"]))
+    Console().print(t)
+    Console().print("no change" if d["identical"] else "datasets differ")
+    return 0
+
+
+def cmd_scenes(args) -> int:
+    from .scenes import builtin_scenes, stage_table
+
+    if args.action == "preview":
+        from .preview import preview_scene
+
+        preview_scene(args.name, args.backend, Path(args.out))
+        print(f"wrote {args.out}")
+        return 0
+    t = Table(title="built-in scenes")
+    for col in ("scene", "stage", "area m²", "height m"):
+        t.add_column(col)
+    for name in builtin_scenes():
+        for stage, area, height in stage_table(name):
+            t.add_row(name, stage, f"{area:.3f}", f"{height:.3f}")
+    Console().print(t)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
+    ap.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    def with_set(p):
+        p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                       help="override a spec field, e.g. --set cameras.distance=[0.5,1.0]")
+        return p
+
+    p = with_set(sub.add_parser("validate", help="check specs; report FILE:LINE:COL: field: message"))
+    p.add_argument("specs", nargs="+")
+    p.set_defaults(fn=cmd_validate)
+
+    p = sub.add_parser("schema", help="write the JSON Schema of the spec")
+    p.add_argument("--out", default=str(SCHEMA_PATH))
+    p.add_argument("--stdout", action="store_true")
+    p.set_defaults(fn=cmd_schema)
+
+    p = with_set(sub.add_parser("compile", help="compile a spec into its job graph (no rendering)"))
+    p.add_argument("spec")
+    p.add_argument("--jobs-out", help="write every job as JSON lines to this file")
+    p.set_defaults(fn=cmd_compile)
+
+    p = with_set(sub.add_parser("plan", help="jobs per stage: existing, cached, to run"))
+    p.add_argument("spec")
+    p.add_argument("--out", required=True)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_plan)
+
+    p = with_set(sub.add_parser("build", help="build a dataset"))
+    p.add_argument("spec")
+    p.add_argument("--out", required=True)
+    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--executor", default="local", help="local (default) or dask://HOST:PORT")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(fn=cmd_build)
+
+    p = with_set(sub.add_parser("diff", help="compare two output folders or two specs"))
+    p.add_argument("a")
+    p.add_argument("b")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_diff)
+
+    p = sub.add_parser("scenes", help="list built-in scenes and their stages, or preview one")
+    p.add_argument("action", nargs="?", choices=["list", "preview"], default="list")
+    p.add_argument("name", nargs="?")
+    p.add_argument("--backend", default="photo")
+    p.add_argument("--out", default="scene.png")
+    p.set_defaults(fn=cmd_scenes)
+
+    args = ap.parse_args(argv)
+    try:
+        return args.fn(args)
+    except SpecError as e:
+        for pr in e.problems:
+            print(str(pr), file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if args.debug:
+            raise
+        from .assets import AssetError
+        from .backend_api import PluginNotFound
+        from .build import BuildLocked
+
+        if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError)):
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,199 @@
+"""Spec -> job graph. Imports no renderer, simulator or executor (enforced by import-linter).
+
+The graph is lazy: jobs are generated from (arrangement, camera) indices on demand, so a spec with
+a million images compiles in seconds and little memory. Every job has a stable id, a seed that
+depends only on the root seed and that id (``specsynth.seeds``), and a content key
+(``specsynth.keys``) over exactly the inputs it reads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Iterator
+
+from . import keys, seeds
+from .assets import AssetError, object_fingerprints
+from .scenes import scene_fingerprint
+from .spec import DatasetSpec
+from .yamlio import LoadedSpec, SpecError
+
+STAGES = ("arrange", "view", "render")
+
+# Which spec fields (dotted paths) each stage reads. A change anywhere else never re-runs it.
+STAGE_FIELDS = {
+    "arrange": ("seed", "objects", "scenes", "arrangements"),
+    "view": ("cameras", "visibility", "intrinsics"),
+    "render": (
+        "quality",
+        "backend",
+        "intrinsics",
+        "visibility.delta",
+        "outputs.image_format",
+        "outputs.jpeg_quality",
+        "outputs.depth",
+        "outputs.depth_scale",
+        "outputs.masks",
+        "outputs.exr",
+    ),
+}
+
+# Distributions whose versions change what a backend renders (read from metadata: no import).
+BACKEND_DISTRIBUTIONS = {
+    "cycles": ("bpy",),
+    "mitsuba": ("mitsuba", "drjit"),
+    "photo": ("pyrender", "scikit-image"),
+}
+
+
+def arr_id(arr: int) -> str:
+    return f"arr={arr:06d}"
+
+
+def view_id(arr: int, cam: int) -> str:
+    return f"arr={arr:06d}/cam={cam:03d}"
+
+
+def render_id(arr: int, cam: int) -> str:
+    return f"arr={arr:06d}/cam={cam:03d}/render"
+
+
+@dataclass(frozen=True)
+class Job:
+    stage: str
+    id: str
+    key: str
+    seed: int
+    arr: int
+    cam: int | None = None
+    upstream: str | None = None  # key of the job this one reads
+
+
+def _dist_version(name: str) -> str:
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return "not-installed"
+
+
+def backend_fingerprint(name: str) -> str:
+    """Backend name and the versions of what it renders with, without importing the renderer."""
+    dists = BACKEND_DISTRIBUTIONS.get(name)
+    if dists is None:
+        eps = [ep for ep in metadata.entry_points(group="specsynth.backends") if ep.name == name]
+        dist = eps[0].dist if eps and eps[0].dist is not None else None
+        return f"{name} ({dist.name} {dist.version})" if dist else f"{name} (unknown)"
+    return f"{name} (" + ", ".join(f"{d} {_dist_version(d)}" for d in dists) + f"; specsynth {_dist_version('specsynth')})"
+
+
+def _field(data: dict, dotted: str):
+    cur = data
+    for part in dotted.split("."):
+        cur = cur[part]
+    return cur
+
+
+@dataclass(frozen=True)
+class JobGraph:
+    spec: DatasetSpec
+    spec_path: Path
+    stage_inputs: dict[str, dict[str, str]]  # stage -> input name -> digest (for diff attribution)
+    stage_digests: dict[str, str]
+    asset_hashes: dict[str, str]
+    backend: str
+
+    @property
+    def n_arrangements(self) -> int:
+        return self.spec.arrangements.count
+
+    @property
+    def cams_per_arrangement(self) -> int:
+        return self.spec.cameras.per_arrangement
+
+    @property
+    def n_views(self) -> int:
+        return self.n_arrangements * self.cams_per_arrangement
+
+    def image_index(self, arr: int, cam: int) -> int:
+        return arr * self.cams_per_arrangement + cam
+
+    def arrange_job(self, arr: int) -> Job:
+        jid = arr_id(arr)
+        return Job("arrange", jid, keys.job_key(self.stage_digests["arrange"], jid), seeds.job_seed(self.spec.seed, jid), arr)
+
+    def view_job(self, arr: int, cam: int, arrange_key: str | None = None) -> Job:
+        jid = view_id(arr, cam)
+        up = arrange_key or self.arrange_job(arr).key
+        return Job("view", jid, keys.job_key(self.stage_digests["view"], jid, up), seeds.job_seed(self.spec.seed, jid), arr, cam, up)
+
+    def render_job(self, arr: int, cam: int, view_key: str | None = None) -> Job:
+        jid = render_id(arr, cam)
+        up = view_key or self.view_job(arr, cam).key
+        return Job("render", jid, keys.job_key(self.stage_digests["render"], jid, up), seeds.job_seed(self.spec.seed, jid), arr, cam, up)
+
+    def arrangement_jobs(self, arr: int) -> tuple[Job, list[Job], list[Job]]:
+        a = self.arrange_job(arr)
+        views = [self.view_job(arr, c, a.key) for c in range(self.cams_per_arrangement)]
+        renders = [self.render_job(arr, v.cam, v.key) for v in views]
+        return a, views, renders
+
+    def jobs(self) -> Iterator[Job]:
+        for arr in range(self.n_arrangements):
+            a, views, renders = self.arrangement_jobs(arr)
+            yield a
+            yield from views
+            yield from renders
+
+    def summary(self) -> dict:
+        return {
+            "spec": str(self.spec_path),
+            "name": self.spec.name,
+            "backend": self.backend,
+            "stages": {
+                "arrange": self.n_arrangements,
+                "view": self.n_views,
+                "render": self.n_views,
+            },
+            "stage_digests": self.stage_digests,
+        }
+
+
+def compile_spec(loaded: LoadedSpec) -> JobGraph:
+    """Resolve asset and scene fingerprints and derive the per-stage input digests."""
+    spec = loaded.spec
+    data = spec.model_dump(mode="json")
+    problems = []
+    try:
+        asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
+    except AssetError as e:
+        field = getattr(e, "field", None) or "objects"
+        problems.append(loaded.locate(field, str(e)))
+        asset_hashes = {}
+    scene_hashes = {}
+    for i, ref in enumerate(spec.scenes):
+        try:
+            scene_hashes[f"scene:{ref.ref}"] = scene_fingerprint(ref, loaded.directory)
+        except (AssetError, ValueError, FileNotFoundError) as e:
+            problems.append(loaded.locate(f"scenes.{i}.{'name' if ref.name else 'file'}", str(e)))
+    if problems:
+        raise SpecError(problems)
+
+    stage_inputs: dict[str, dict[str, str]] = {}
+    for stage, fields in STAGE_FIELDS.items():
+        inputs = {f"spec:{f}": keys.digest(_field(data, f)) for f in fields}
+        stage_inputs[stage] = inputs
+    stage_inputs["arrange"].update(asset_hashes)
+    stage_inputs["arrange"].update(scene_hashes)
+    stage_inputs["view"]["annotator"] = f"pyrender {_dist_version('pyrender')}"
+    backend = backend_fingerprint(spec.backend.name)
+    stage_inputs["render"]["backend"] = backend
+    stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
+    return JobGraph(
+        spec=spec,
+        spec_path=loaded.path,
+        stage_inputs=stage_inputs,
+        stage_digests=stage_digests,
+        asset_hashes={**asset_hashes, **scene_hashes},
+        backend=backend,
+    )

@@ -1,0 +1,43 @@
+"""The default executor: a local pool of spawned processes, one warm backend per worker.
+
+``--jobs 1`` runs jobs in the calling process (same code path, no start-up cost). Results do not
+depend on the number of workers: every job's output is a function of its inputs and seed only.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from concurrent.futures import Future, ProcessPoolExecutor
+
+from .. import tasks
+
+
+class LocalExecutor:
+    def __init__(self, ctx: tasks.BuildContext, *, jobs: int = 1, address: str | None = None):
+        self.jobs = max(1, int(jobs))
+        if self.jobs == 1:
+            tasks.init_worker(ctx)
+            self._pool = None
+        else:
+            self._pool = ProcessPoolExecutor(
+                max_workers=self.jobs,
+                mp_context=mp.get_context("spawn"),
+                initializer=tasks.init_worker,
+                initargs=(ctx,),
+            )
+
+    def submit(self, fn, *args) -> Future:
+        if self._pool is not None:
+            return self._pool.submit(fn, *args)
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as e:  # surfaced through the future, as a pool would
+            fut.set_exception(e)
+        return fut
+
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            tasks.current_worker().close()

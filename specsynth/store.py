@@ -1,0 +1,72 @@
+"""Content-addressed store of finished job outputs under ``<out>/.specsynth/store``.
+
+A job's outputs are written into a private temp folder and renamed into place as a whole, with
+``record.json`` written last inside it: a job counts as done only when its folder exists with a
+record, so a build killed at any moment never exposes half-written results.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+from typing import Any
+
+from .keys import canonical_json
+from .meshio import atomic_write_bytes
+
+RECORD = "record.json"
+
+
+class Store:
+    def __init__(self, out: Path):
+        self.root = Path(out) / ".specsynth" / "store"
+        self.tmp = Path(out) / ".specsynth" / "tmp"
+
+    def path(self, stage: str, key: str) -> Path:
+        return self.root / stage / key[:2] / key
+
+    def has(self, stage: str, key: str) -> bool:
+        return (self.path(stage, key) / RECORD).is_file()
+
+    def load(self, stage: str, key: str) -> dict[str, Any]:
+        return json.loads((self.path(stage, key) / RECORD).read_bytes())
+
+    def keys(self, stage: str) -> set[str]:
+        """All finished keys of a stage, listed once (cheap cache checks for big plans)."""
+        base = self.root / stage
+        if not base.is_dir():
+            return set()
+        return {p.name for d in base.iterdir() if d.is_dir() for p in d.iterdir() if (p / RECORD).is_file()}
+
+    def begin(self) -> Path:
+        d = self.tmp / uuid.uuid4().hex
+        d.mkdir(parents=True)
+        return d
+
+    def commit(self, stage: str, key: str, workdir: Path, record: dict[str, Any]) -> Path:
+        (workdir / RECORD).write_bytes(canonical_json(record))
+        final = self.path(stage, key)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.rename(workdir, final)
+        except OSError:
+            # Another worker finished the same job first (same key, same content): keep theirs.
+            if not (final / RECORD).is_file():
+                raise
+            shutil.rmtree(workdir, ignore_errors=True)
+        return final
+
+    def put(self, stage: str, key: str, record: dict[str, Any]) -> Path:
+        return self.commit(stage, key, self.begin(), record)
+
+    def clean_tmp(self) -> None:
+        """Remove leftovers of killed jobs; only safe while holding the build lock."""
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def write_json(path: Path, obj: Any, *, indent: int | None = 2) -> None:
+    text = json.dumps(obj, indent=indent, sort_keys=True, allow_nan=False) + "\n"
+    atomic_write_bytes(path, text.encode("utf-8"))

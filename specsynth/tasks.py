@@ -1,0 +1,273 @@
+"""What a worker process does with jobs: arrange, view (camera + visibility), render.
+
+Work arrives grouped per arrangement so the expensive state (assets, pyrender scene, the
+renderer's scene) is built once per arrangement and only the camera moves. A ``Worker`` holds that
+state for one process; renderers are found by name through entry points, never imported here.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import cameras, seeds
+from .assets import ObjectAsset, resolve_objects
+from .backend_api import load_backend
+from .colour import check_finite
+from .compiler import Job
+from .ir import MeshInstance, RenderScene, as_tuple
+from .records import ArrangementRecord, ImageRecord, PlacedObject, ViewRecord
+from .scenes import load_scene
+from .scenes.types import SceneDesc
+from .spec import DatasetSpec, SceneRef
+from .store import Store
+
+
+@dataclass(frozen=True)
+class BuildContext:
+    """Everything a worker needs; small and picklable."""
+
+    spec: DatasetSpec
+    spec_dir: Path
+    out: Path
+    threads: int = 0  # renderer threads per worker; 0 = all cores
+
+
+class Worker:
+    def __init__(self, ctx: BuildContext):
+        self.ctx = ctx
+        self.spec = ctx.spec
+        self.store = Store(ctx.out)
+        self._assets: list[ObjectAsset] | None = None
+        self._scenes: dict[str, SceneDesc] = {}
+        self._annotator = None
+        self._backend = None
+
+    # ------------------------------------------------------------------ lazily built state
+    def assets(self) -> list[ObjectAsset]:
+        if self._assets is None:
+            self._assets = resolve_objects(self.spec.objects, self.ctx.spec_dir)
+        return self._assets
+
+    def scene(self, ref: SceneRef) -> SceneDesc:
+        if ref.ref not in self._scenes:
+            self._scenes[ref.ref] = load_scene(ref, self.ctx.spec_dir)
+        return self._scenes[ref.ref]
+
+    def annotator(self):
+        if self._annotator is None:
+            from .annotate import Annotator
+
+            self._annotator = Annotator(self.spec.intrinsics.width, self.spec.intrinsics.height)
+        return self._annotator
+
+    def backend(self):
+        if self._backend is None:
+            cls = load_backend(self.spec.backend.name)
+            self._backend = cls(self.spec.backend, threads=self.ctx.threads)
+        return self._backend
+
+    def close(self) -> None:
+        for obj in (self._backend, self._annotator):
+            if obj is not None:
+                obj.close()
+        self._backend = self._annotator = None
+
+    # ------------------------------------------------------------------ helpers
+    def _scene_ref(self, name: str) -> SceneRef:
+        for ref in self.spec.scenes:
+            if ref.ref == name:
+                return ref
+        raise KeyError(name)
+
+    def render_scene(self, arr: ArrangementRecord) -> RenderScene:
+        by_id = {a.obj_id: a for a in self.assets()}
+        objects = tuple(
+            MeshInstance(
+                name=f"obj_{o.obj_id:06d}_{o.inst:03d}",
+                mesh_path=by_id[o.obj_id].mesh_path,
+                mesh_key=by_id[o.obj_id].mesh_key,
+                pose=as_tuple(np.asarray(o.pose)),
+                material=by_id[o.obj_id].material,
+                obj_id=o.obj_id,
+                inst=o.inst,
+            )
+            for o in arr.objects
+        )
+        return self.scene(self._scene_ref(arr.scene)).with_objects(objects)
+
+    def camera(self, R_w2c, t_w2c):
+        return cameras.camera_ir(self.spec.intrinsics, np.asarray(R_w2c), np.asarray(t_w2c))
+
+    # ------------------------------------------------------------------ stages
+    def run_arrange(self, job: Job) -> dict[str, Any]:
+        from .physics import arrange
+
+        spec = self.spec
+        rng = seeds.job_rng(spec.seed, job.id)
+        weights = np.array([s.weight for s in spec.scenes], dtype=np.float64)
+        ref = spec.scenes[int(rng.choice(len(spec.scenes), p=weights / weights.sum()))]
+        scene = self.scene(ref)
+        names = ref.stages or sorted(scene.stages)
+        missing = [n for n in names if n not in scene.stages]
+        if missing:
+            raise ValueError(f"scene {ref.ref!r} has no stage(s) {missing}; it has {sorted(scene.stages)}")
+        stage = scene.stages[names[int(rng.integers(len(names)))]]
+
+        models = self.assets()
+        if spec.objects.models_per_arrangement is not None:
+            lo, hi = spec.objects.models_per_arrangement
+            k = min(int(rng.integers(lo, hi + 1)), len(models))
+            chosen = sorted(rng.choice(len(models), size=k, replace=False))
+            models = [models[i] for i in chosen]
+        lo, hi = spec.objects.instances
+        drop: list[ObjectAsset] = []
+        for m in models:
+            drop += [m] * int(rng.integers(lo, hi + 1))
+
+        result = arrange(scene, stage, drop, spec.arrangements, spec.objects.orientation, rng)
+        placed = [
+            PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
+            for n, (i, pose) in enumerate(result.placed)
+        ]
+        rec = ArrangementRecord(
+            arr=job.arr, scene=ref.ref, stage=stage.name, objects=placed, dropped=len(drop),
+            removed=result.removed, redropped=result.redropped, settled=result.settled,
+            sim_seconds=result.sim_seconds, seed=job.seed,
+        )
+        self.store.put("arrange", job.key, rec.to_json())
+        return {"id": job.id, "removed": rec.removed, "redropped": rec.redropped, "objects": len(placed)}
+
+    def run_views(self, arrange_key: str, jobs: list[Job]) -> list[dict[str, Any]]:
+        spec = self.spec
+        arr = ArrangementRecord.from_json(self.store.load("arrange", arrange_key))
+        scene = self.render_scene(arr)
+        objects = scene.objects()
+        annot = self.annotator()
+        if objects:
+            annot.load(scene)
+        by_id = {a.obj_id: a for a in self.assets()}
+        out = []
+        for job in jobs:
+            rng = seeds.job_rng(spec.seed, job.id)
+            rec = ViewRecord(arr=job.arr, cam=job.cam, index=job.arr * spec.cameras.per_arrangement + job.cam,
+                             accepted=False, tries=0, seed=job.seed)
+            rejected = 0.0
+            for _ in range(spec.cameras.max_tries if objects else 0):
+                focus = objects[int(rng.integers(len(objects)))]
+                a = by_id[focus.obj_id]
+                centre = np.asarray(a.bbox_min) + 0.5 * np.asarray(a.extents)
+                target = (focus.matrix @ np.append(centre, 1.0))[:3]
+                s = cameras.sample_camera(rng, target, spec.cameras)
+                t0 = time.perf_counter()
+                vf = annot.visib_fract(self.camera(s.R_w2c, s.t_w2c), focus.inst, spec.visibility.delta)
+                rec.tries += 1
+                if vf >= spec.visibility.threshold:
+                    rec.accepted = True
+                    rec.focus_inst, rec.focus_visib_fract = focus.inst, float(vf)
+                    rec.R_w2c, rec.t_w2c = np.asarray(s.R_w2c).tolist(), np.asarray(s.t_w2c).tolist()
+                    rec.azimuth, rec.elevation, rec.distance = float(s.azimuth), float(s.elevation), float(s.distance)
+                    break
+                rejected += time.perf_counter() - t0
+            rec.rejected_seconds = rejected
+            self.store.put("view", job.key, rec.to_json())
+            out.append({"id": job.id, "accepted": rec.accepted, "tries": rec.tries, "rejected_seconds": rejected})
+        return out
+
+    def run_renders(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
+        from .writers.images import encode_depth, write_jpg, write_mask, write_png, write_exr
+
+        spec = self.spec
+        arr = ArrangementRecord.from_json(self.store.load("arrange", arrange_key))
+        scene = self.render_scene(arr)
+        backend = self.backend()
+        annot = self.annotator()
+        t0 = time.perf_counter()
+        backend.load(scene)
+        annot.load(scene)
+        load_seconds = time.perf_counter() - t0
+        occluders = "scene" if backend.draws_scene else "objects"
+        preset = spec.quality.resolved()
+        ext = spec.outputs.image_format
+        out = []
+        for view_job, job in pairs:
+            view = ViewRecord.from_json(self.store.load("view", view_job.key))
+            cam = self.camera(view.R_w2c, view.t_w2c)
+            t1 = time.perf_counter()
+            res = backend.render(cam, preset, job.seed, clamp=spec.quality.clamp)
+            seconds = time.perf_counter() - t1
+            if res.linear is not None:
+                check_finite(res.linear, f"{spec.backend.name} render of {job.id}")
+            ann = annot.annotate(cam, spec.visibility.delta, occluders)
+            wd = self.store.begin()
+            rgb_file = f"rgb.{ext}"
+            if ext == "jpg":
+                write_jpg(wd / rgb_file, res.rgb, spec.outputs.jpeg_quality)
+            else:
+                write_png(wd / rgb_file, res.rgb)
+            depth_file, scale = None, spec.outputs.depth_scale
+            if spec.outputs.depth:
+                depth16, scale = encode_depth(ann.depth, spec.outputs.depth_scale)
+                depth_file = "depth.png"
+                write_png(wd / depth_file, depth16)
+            if scale == "auto":
+                scale = 1.0
+            masks, masks_visib = [], []
+            if spec.outputs.masks:
+                for gt, (m, mv) in enumerate(zip(ann.masks, ann.masks_visib)):
+                    masks.append(f"mask_{gt:06d}.png")
+                    masks_visib.append(f"mask_visib_{gt:06d}.png")
+                    write_mask(wd / masks[-1], m)
+                    write_mask(wd / masks_visib[-1], mv)
+            exr_file = None
+            if spec.outputs.exr and res.linear is not None:
+                exr_file = "rgb.exr"
+                write_exr(wd / exr_file, res.linear)
+            stats = dict(res.stats)
+            stats["load_seconds"] = load_seconds
+            rec = ImageRecord(
+                arr=job.arr, cam=job.cam, index=view.index, scene=arr.scene, stage=arr.stage,
+                backend=spec.backend.name, backend_version=backend.version(), quality=spec.quality.level,
+                seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
+                R_w2c=view.R_w2c, t_w2c=view.t_w2c, depth_scale=float(scale), instances=ann.instances,
+                rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
+                exr_file=exr_file, render_seconds=seconds, stats=stats,
+            )
+            self.store.commit("render", job.key, wd, rec.to_json())
+            out.append({"id": job.id, "seconds": seconds})
+        return out
+
+
+# One Worker per process, created by the pool initializer: the warm renderer must outlive a job.
+_worker: Worker | None = None
+
+
+def init_worker(ctx: BuildContext) -> None:
+    global _worker
+    # Renderers must not oversubscribe the cores the pool already splits between workers.
+    if ctx.threads:
+        os.environ["OMP_NUM_THREADS"] = str(ctx.threads)
+    _worker = Worker(ctx)
+
+
+def current_worker() -> Worker:
+    if _worker is None:
+        raise RuntimeError("worker not initialised")
+    return _worker
+
+
+def task_arrange(job: Job):
+    return current_worker().run_arrange(job)
+
+
+def task_views(arrange_key: str, jobs: list[Job]):
+    return current_worker().run_views(arrange_key, jobs)
+
+
+def task_renders(arrange_key: str, pairs: list[tuple[Job, Job]]):
+    return current_worker().run_renders(arrange_key, pairs)
