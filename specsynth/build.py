@@ -125,16 +125,34 @@ def _progress(console):
     )
 
 
-def _drain(futures: list[tuple[Future, Any]], on_done: Callable[[Any, Any], None], on_error: Callable[[Any, BaseException], None]):
-    for fut, meta in futures:
+def _run(ex, calls: list[tuple[Callable, tuple, Any]], on_done: Callable[[Any, Any], None],
+         on_error: Callable[[Any, BaseException], None], *, window: int, retries: int) -> None:
+    """Submit calls with at most ``window`` in flight; retry a failed call up to ``retries`` times.
+
+    A retry is safe because a job counts only once its record is in the store: a re-submitted
+    group re-runs exactly the jobs that have no finished result.
+    """
+    queue = [(fn, args, meta, 0) for fn, args, meta in reversed(calls)]
+    inflight: list[tuple[Future, tuple]] = []
+    while queue or inflight:
+        while queue and len(inflight) < window:
+            item = queue.pop()
+            inflight.append((ex.submit(item[0], *item[1]), item))
+        fut, item = inflight.pop(0)
         try:
-            on_done(meta, fut.result())
+            res = fut.result()
         except Exception as e:  # one failed job must not stop the build
-            on_error(meta, e)
+            fn, args, meta, tries = item
+            if tries < retries:
+                queue.append((fn, args, meta, tries + 1))
+            else:
+                on_error(meta, e)
+            continue
+        on_done(item[2], res)
 
 
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
-          console=None) -> BuildSummary:
+          console=None, retries: int = 2) -> BuildSummary:
     from .tasks import BuildContext, task_arrange, task_renders, task_views
 
     out = Path(out)
@@ -146,6 +164,11 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
         ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
+        window = 2 * max(1, getattr(ex, "workers", jobs))
+
+        def run(calls, on_done, on_error):
+            _run(ex, calls, on_done, on_error, window=window, retries=retries)
+
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
 
         def fail(stage: str):
@@ -163,20 +186,20 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                 todo = [a for a, _, _ in arr_jobs if not store.has("arrange", a.key)]
                 st.cached = st.total - len(todo)
                 task = prog.add_task("arrange", total=st.total, completed=st.cached)
-                futs = [(ex.submit(task_arrange, a), a.id) for a in todo]
+                calls = [(task_arrange, (a,), a.id) for a in todo]
 
                 def arr_done(meta, res):
                     st.ran += 1
                     prog.advance(task)
 
-                _drain(futs, arr_done, fail("arrange"))
+                run(calls, arr_done, fail("arrange"))
                 st.seconds = time.perf_counter() - t0
 
                 # -------------------------------------------------- view
                 t0 = time.perf_counter()
                 sv = summary.stages["view"]
                 task = prog.add_task("view", total=graph.n_views)
-                futs = []
+                calls = []
                 for a, views, _ in arr_jobs:
                     sv.total += len(views)
                     if not store.has("arrange", a.key):
@@ -185,7 +208,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sv.cached += len(views) - len(todo_v)
                     prog.advance(task, len(views) - len(todo_v))
                     if todo_v:
-                        futs.append((ex.submit(task_views, a.key, todo_v), (a.id, len(todo_v))))
+                        calls.append((task_views, (a.key, todo_v), (a.id, len(todo_v))))
 
                 def views_done(meta, res):
                     sv.ran += len(res)
@@ -195,7 +218,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sv.failed += meta[1]
                     summary.failures.append({"stage": "view", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
 
-                _drain(futs, views_done, views_failed)
+                run(calls, views_done, views_failed)
                 sv.seconds = time.perf_counter() - t0
 
                 # -------------------------------------------------- render
@@ -222,7 +245,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     if todo_r:
                         pending.append((a.key, todo_r))
                 task = prog.add_task("render", total=sr.total, completed=sr.cached)
-                futs = [(ex.submit(task_renders, key, pairs), (pairs[0][1].id.rsplit("/", 2)[0], len(pairs))) for key, pairs in pending]
+                calls = [(task_renders, (key, pairs), (pairs[0][1].id.rsplit("/", 2)[0], len(pairs))) for key, pairs in pending]
 
                 def renders_done(meta, res):
                     sr.ran += len(res)
@@ -232,7 +255,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sr.failed += meta[1]
                     summary.failures.append({"stage": "render", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
 
-                _drain(futs, renders_done, renders_failed)
+                run(calls, renders_done, renders_failed)
                 sr.seconds = time.perf_counter() - t0
         finally:
             ex.shutdown()

@@ -108,6 +108,8 @@ class Worker:
     def run_arrange(self, job: Job) -> dict[str, Any]:
         from .physics import arrange
 
+        if self.store.has("arrange", job.key):
+            return {"id": job.id, "cached": True}
         spec = self.spec
         rng = seeds.job_rng(spec.seed, job.id)
         weights = np.array([s.weight for s in spec.scenes], dtype=np.float64)
@@ -154,6 +156,8 @@ class Worker:
         by_id = {a.obj_id: a for a in self.assets()}
         out = []
         for job in jobs:
+            if self.store.has("view", job.key):  # finished before a retry
+                continue
             rng = seeds.job_rng(spec.seed, job.id)
             rec = ViewRecord(arr=job.arr, cam=job.cam, index=job.arr * spec.cameras.per_arrangement + job.cam,
                              accepted=False, tries=0, seed=job.seed)
@@ -196,6 +200,8 @@ class Worker:
         ext = spec.outputs.image_format
         out = []
         for view_job, job in pairs:
+            if self.store.has("render", job.key):  # finished before a retry
+                continue
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
             cam = self.camera(view.R_w2c, view.t_w2c)
             t1 = time.perf_counter()

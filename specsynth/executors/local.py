@@ -8,27 +8,39 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 
 from .. import tasks
 
 
 class LocalExecutor:
     def __init__(self, ctx: tasks.BuildContext, *, jobs: int = 1, address: str | None = None):
-        self.jobs = max(1, int(jobs))
-        if self.jobs == 1:
+        self.workers = max(1, int(jobs))
+        self._ctx = ctx
+        self._pool = None
+        if self.workers == 1:
             tasks.init_worker(ctx)
-            self._pool = None
         else:
-            self._pool = ProcessPoolExecutor(
-                max_workers=self.jobs,
-                mp_context=mp.get_context("spawn"),
-                initializer=tasks.init_worker,
-                initargs=(ctx,),
-            )
+            self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=self.workers,
+            mp_context=mp.get_context("spawn"),
+            initializer=tasks.init_worker,
+            initargs=(self._ctx,),
+        )
 
     def submit(self, fn, *args) -> Future:
         if self._pool is not None:
-            return self._pool.submit(fn, *args)
+            try:
+                return self._pool.submit(fn, *args)
+            except BrokenProcessPool:
+                # A worker died (e.g. a renderer segfault): replace the pool; the build's retry
+                # logic re-submits the jobs that have no finished result.
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = self._new_pool()
+                return self._pool.submit(fn, *args)
         fut: Future = Future()
         try:
             fut.set_result(fn(*args))
