@@ -168,6 +168,28 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+def cmd_view(args) -> int:
+    from .qa import contact_sheet
+
+    dest = contact_sheet([Path(o) for o in args.outs], Path(args.out), n=args.n, seed=args.seed)
+    print(f"wrote {dest}")
+    return 0
+
+
+def cmd_stats(args) -> int:
+    from .qa import dataset_stats
+
+    table = dataset_stats(Path(args.dataset), Path(args.out))
+    t = Table(title=f"stats: {args.dataset}")
+    t.add_column("what")
+    t.add_column("value")
+    for k, v in table.items():
+        t.add_row(k, json.dumps(v) if isinstance(v, dict) else str(v))
+    Console().print(t)
+    print(f"wrote {Path(args.out) / 'stats.png'} and stats.json")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -218,6 +240,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--backend", default="photo")
     p.add_argument("--out", default="scene.png")
     p.set_defaults(fn=cmd_scenes)
+
+    p = sub.add_parser("view", help="contact sheet of sampled images with boxes, mask outlines, ids")
+    p.add_argument("outs", nargs="+", help="one output folder, or two to compare (e.g. PBR and BL)")
+    p.add_argument("--out", required=True, help="PNG file to write")
+    p.add_argument("-n", type=int, default=8)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(fn=cmd_view)
+
+    p = sub.add_parser("stats", help="plots and a table of a built dataset")
+    p.add_argument("dataset")
+    p.add_argument("--out", required=True, help="folder for stats.png and stats.json")
+    p.set_defaults(fn=cmd_stats)
 
     args = ap.parse_args(argv)
     try:
