@@ -1,0 +1,41 @@
+"""Merge-step writers: BOP, Parquet and COCO from render records and their store files.
+
+``write_outputs`` is the one entry point the build runner calls; the per-format functions are
+usable on their own. Worker-side per-view encoders live in :mod:`specsynth.writers.images`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+from ..assets import ObjectAsset
+from ..spec import DatasetSpec
+from .bop import ImageEntry, sorted_images, write_bop
+from .coco import all_visible_rles, write_coco
+from .parquet import write_parquet
+
+__all__ = ["write_outputs", "write_bop", "write_coco", "write_parquet"]
+
+
+def write_outputs(
+    out: Path, spec: DatasetSpec, images: Sequence[ImageEntry], models: Sequence[ObjectAsset]
+) -> dict[str, int]:
+    """Write every output the spec enables into ``out``; returns counts by name."""
+    o = spec.outputs
+    out = Path(out)
+    images = sorted_images(images)
+    # Visible-mask RLEs feed three files; decode each mask PNG once.
+    rles = all_visible_rles(images) if (o.coco or o.parquet) else None
+    counts: dict[str, int] = {"images": len(images), "instances": sum(len(r.instances) for r, _ in images)}
+    if o.bop:
+        counts |= write_bop(
+            out, spec.split, images, models, spec.intrinsics, o, coco=o.coco, rles=rles, dataset_name=spec.name
+        )
+    if o.parquet:
+        counts |= write_parquet(out, spec.split, images, o.chunk_size, bop_layout=o.bop, rles=rles)
+    if o.coco:
+        counts |= write_coco(
+            out, spec.split, images, models, o.chunk_size, bop_layout=o.bop, rles=rles, dataset_name=spec.name
+        )
+    return counts

@@ -1,0 +1,452 @@
+"""BOP writer: ``<out>/bop/`` in the layout the BOP toolkit (``bop_toolkit_lib.inout``) reads as is.
+
+Units change here and only here: records are metres, BOP files are millimetres.
+
+Merge semantics, so that an interrupted or repeated merge is harmless:
+- every file lands by atomic rename (JSON and PLY via temp file, images via a temp hard link);
+- a file whose bytes are already right is left untouched (same inode, same mtime);
+- image files and chunk folders of images no longer in the build are removed, but only names this
+  writer would produce, so anything a user put next to them survives.
+"""
+
+from __future__ import annotations
+
+import errno
+import filecmp
+import json
+import os
+import re
+import shutil
+import uuid
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from ..assets import ObjectAsset
+from ..conventions import m_to_mm
+from ..meshio import MeshData, atomic_write_bytes, read_mesh
+from ..records import ImageRecord
+from ..spec import Intrinsics, Outputs
+
+ImageEntry = tuple[ImageRecord, Path]  # record + the store folder holding its files
+
+# Subfolders of a chunk that this writer owns, with the file-name patterns it may delete there.
+_IMAGE_NAME = re.compile(r"^\d{6}\.(jpg|png|exr)$")
+_MASK_NAME = re.compile(r"^\d{6}_\d{6}\.png$")
+MANAGED_DIRS: dict[str, re.Pattern] = {
+    "rgb": _IMAGE_NAME,
+    "depth": _IMAGE_NAME,
+    "mask": _MASK_NAME,
+    "mask_visib": _MASK_NAME,
+    "exr": _IMAGE_NAME,
+}
+CHUNK_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json")
+_CHUNK_NAME = re.compile(r"^\d{6}$")
+_MODEL_NAME = re.compile(r"^obj_\d{6}\.\w+$")
+_TMP_NAME = re.compile(r"^\..+\.tmp$")
+_NOTHING = re.compile(r"(?!)")  # for folders where only temp files are ours to delete
+
+# A rotation further than this from orthonormal is a corrupt record, not float noise.
+ORTHONORMAL_TOL = 1e-5
+
+
+# --------------------------------------------------------------------------- ids and paths
+
+
+def chunk_and_im_id(index: int, chunk_size: int) -> tuple[int, int]:
+    return index // chunk_size, index % chunk_size
+
+
+def image_relpaths(split: str, rec: ImageRecord, chunk_size: int) -> dict[str, str | None]:
+    """Paths (relative to ``<out>``) of an image's files in the BOP layout."""
+    chunk, im_id = chunk_and_im_id(rec.index, chunk_size)
+    base = f"bop/{split}/{chunk:06d}"
+    return {
+        "rgb": f"{base}/rgb/{im_id:06d}{Path(rec.rgb_file).suffix.lower()}",
+        "depth": f"{base}/depth/{im_id:06d}.png" if rec.depth_file else None,
+        "exr": f"{base}/exr/{im_id:06d}.exr" if rec.exr_file else None,
+    }
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+def _plain(x: Any) -> Any:
+    """numpy scalars/arrays -> Python, so json output does not depend on where a number came from."""
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x)
+    return x
+
+
+def bop_json_bytes(content: dict | list) -> bytes:
+    """The layout of ``bop_toolkit_lib.inout.save_json``: one top-level entry per line, keys in
+    numeric order, inner keys sorted. Floats use repr, so they round-trip exactly."""
+    content = _plain(content)
+
+    def dumps(v: Any) -> str:
+        return json.dumps(v, sort_keys=True, allow_nan=False)
+
+    if isinstance(content, dict):
+        items = sorted(content.items(), key=lambda kv: kv[0])
+        lines = [f"  {json.dumps(str(k))}: {dumps(v)}" for k, v in items]
+        text = "{\n" + ",\n".join(lines) + ("\n}" if lines else "}")
+    elif isinstance(content, list):
+        lines = [f"  {dumps(v)}" for v in content]
+        text = "[\n" + ",\n".join(lines) + ("\n]" if lines else "]")
+    else:
+        text = dumps(content)
+    return text.encode("utf-8")
+
+
+# --------------------------------------------------------------------------- idempotent file placement
+
+
+def write_if_changed(path: Path, data: bytes) -> bool:
+    """Atomic write that skips identical content, so re-merging keeps inodes and mtimes."""
+    path = Path(path)
+    try:
+        if path.stat().st_size == len(data) and path.read_bytes() == data:
+            return False
+    except FileNotFoundError:
+        pass
+    atomic_write_bytes(path, data)
+    return True
+
+
+def place_file(src: Path, dst: Path) -> bool:
+    """Hard-link ``src`` to ``dst`` (copy across devices), atomically; False when already there."""
+    src, dst = Path(src), Path(dst)
+    if not src.is_file():
+        raise FileNotFoundError(f"store file missing: {src}")
+    if dst.exists():
+        if os.path.samefile(src, dst) or filecmp.cmp(src, dst, shallow=False):
+            return False
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.parent / f".{dst.name}.{uuid.uuid4().hex}.tmp"
+    try:
+        try:
+            os.link(src, tmp)
+        except OSError as e:
+            if e.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
+                raise
+            shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+    except BaseException:
+        if tmp.exists():
+            tmp.unlink()
+        raise
+    return True
+
+
+def _remove_unexpected(folder: Path, pattern: re.Pattern, keep: set[str]) -> int:
+    """Delete our own stale files (and temp files of an interrupted merge) from ``folder``."""
+    if not folder.is_dir():
+        return 0
+    removed = 0
+    for p in sorted(folder.iterdir()):
+        if p.is_file() and ((pattern.match(p.name) and p.name not in keep) or _TMP_NAME.match(p.name)):
+            p.unlink()
+            removed += 1
+    return removed
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _rotation(R: Sequence[Sequence[float]], what: str) -> list[float]:
+    a = np.asarray(R, dtype=np.float64)
+    if a.shape != (3, 3) or not np.isfinite(a).all():
+        raise ValueError(f"{what}: rotation must be a finite 3x3 matrix, got shape {a.shape}")
+    err = float(np.abs(a @ a.T - np.eye(3)).max())
+    if err > ORTHONORMAL_TOL or np.linalg.det(a) < 0:
+        raise ValueError(f"{what}: rotation is not orthonormal (|R R^T - I| = {err:.2e}, det {np.linalg.det(a):.3f})")
+    return a.reshape(-1).tolist()
+
+
+def _vec_mm(t: Sequence[float], what: str) -> list[float]:
+    a = np.asarray(t, dtype=np.float64)
+    if a.shape != (3,) or not np.isfinite(a).all():
+        raise ValueError(f"{what}: translation must be 3 finite numbers, got {t!r}")
+    return m_to_mm(a).tolist()
+
+
+def _check_image(rec: ImageRecord) -> None:
+    n = len(rec.instances)
+    if rec.mask_files and len(rec.mask_files) != n:
+        raise ValueError(f"image {rec.index}: {len(rec.mask_files)} mask files for {n} instances")
+    if rec.mask_visib_files and len(rec.mask_visib_files) != n:
+        raise ValueError(f"image {rec.index}: {len(rec.mask_visib_files)} mask_visib files for {n} instances")
+    if np.asarray(rec.K).shape != (3, 3):
+        raise ValueError(f"image {rec.index}: K must be 3x3")
+
+
+def sorted_images(images: Iterable[ImageEntry]) -> list[ImageEntry]:
+    """Images in index order; duplicates are a merge bug that would silently overwrite files."""
+    out = sorted(((r, Path(s)) for r, s in images), key=lambda e: e[0].index)
+    for (a, _), (b, _) in zip(out, out[1:]):
+        if a.index == b.index:
+            raise ValueError(f"two render records for image index {a.index}")
+    return out
+
+
+# --------------------------------------------------------------------------- per-chunk content
+
+
+def scene_camera_entry(rec: ImageRecord) -> dict[str, Any]:
+    return {
+        "cam_K": np.asarray(rec.K, dtype=np.float64).reshape(-1).tolist(),
+        "depth_scale": float(rec.depth_scale),
+        "cam_R_w2c": _rotation(rec.R_w2c, f"image {rec.index} R_w2c"),
+        "cam_t_w2c": _vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
+    }
+
+
+def scene_gt_entry(rec: ImageRecord) -> list[dict[str, Any]]:
+    return [
+        {
+            "cam_R_m2c": _rotation(g.R_m2c, f"image {rec.index} gt {i} R_m2c"),
+            "cam_t_m2c": _vec_mm(g.t_m2c, f"image {rec.index} gt {i} t_m2c"),
+            "obj_id": int(g.obj_id),
+        }
+        for i, g in enumerate(rec.instances)
+    ]
+
+
+def scene_gt_info_entry(rec: ImageRecord) -> list[dict[str, Any]]:
+    return [
+        {
+            "bbox_obj": [int(v) for v in g.bbox_obj],
+            "bbox_visib": [int(v) for v in g.bbox_visib],
+            "px_count_all": int(g.px_count_all),
+            "px_count_valid": int(g.px_count_valid),
+            "px_count_visib": int(g.px_count_visib),
+            "visib_fract": float(g.visib_fract),
+        }
+        for g in rec.instances
+    ]
+
+
+def _chunk_files(rec: ImageRecord, store: Path, im_id: int) -> list[tuple[str, str, Path]]:
+    """(subfolder, file name, source) of every file of one image."""
+    files = [("rgb", f"{im_id:06d}{Path(rec.rgb_file).suffix.lower()}", store / rec.rgb_file)]
+    if rec.depth_file:
+        files.append(("depth", f"{im_id:06d}.png", store / rec.depth_file))
+    if rec.exr_file:
+        files.append(("exr", f"{im_id:06d}.exr", store / rec.exr_file))
+    for gt_id, name in enumerate(rec.mask_files):
+        files.append(("mask", f"{im_id:06d}_{gt_id:06d}.png", store / name))
+    for gt_id, name in enumerate(rec.mask_visib_files):
+        files.append(("mask_visib", f"{im_id:06d}_{gt_id:06d}.png", store / name))
+    return files
+
+
+# --------------------------------------------------------------------------- models
+
+
+def bop_model_bytes(mesh: MeshData, texture_file: str | None = None) -> bytes:
+    """Binary PLY in millimetres with the property names ``inout.load_ply`` understands
+    (``texture_u``/``texture_v``, ``comment TextureFile``) and only types it can unpack."""
+    n = len(mesh.vertices)
+    fields: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if mesh.normals is not None:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if mesh.colors is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
+    if mesh.uv is not None:
+        fields += [("texture_u", "<f4"), ("texture_v", "<f4")]
+    vert = np.empty(n, dtype=np.dtype(fields))
+    xyz = (mesh.vertices.astype(np.float64) * 1000.0).astype(np.float32)
+    vert["x"], vert["y"], vert["z"] = xyz.T
+    if mesh.normals is not None:
+        vert["nx"], vert["ny"], vert["nz"] = mesh.normals.astype(np.float32).T
+    if mesh.colors is not None:
+        vert["red"], vert["green"], vert["blue"], vert["alpha"] = mesh.colors.astype(np.uint8).T
+    if mesh.uv is not None:
+        vert["texture_u"], vert["texture_v"] = mesh.uv.astype(np.float32).T
+    faces = np.empty(len(mesh.faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    faces["n"] = 3
+    faces["i"] = mesh.faces.astype(np.int32)
+
+    type_names = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", "comment units: millimetres (written by specsynth)"]
+    if texture_file:
+        header.append(f"comment TextureFile {texture_file}")
+    header.append(f"element vertex {n}")
+    header += [f"property {type_names[t]} {name}" for name, t in fields]
+    header += [f"element face {len(mesh.faces)}", "property list uchar int vertex_indices", "end_header"]
+    return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + faces.tobytes()
+
+
+def write_models(models_dir: Path, models: Sequence[ObjectAsset]) -> dict[str, int]:
+    models_dir = Path(models_dir)
+    info: dict[int, dict[str, float]] = {}
+    keep: set[str] = set()
+    written = 0
+    seen: set[int] = set()
+    for asset in sorted(models, key=lambda a: a.obj_id):
+        if asset.obj_id in seen:
+            raise ValueError(f"two models with obj_id {asset.obj_id}")
+        seen.add(asset.obj_id)
+        stem = f"obj_{asset.obj_id:06d}"
+        mesh = read_mesh(asset.mesh_path)
+        texture_name = None
+        tex = asset.material.texture
+        if tex and mesh.uv is not None and Path(tex).is_file():
+            texture_name = stem + Path(tex).suffix.lower()
+            written += place_file(Path(tex), models_dir / texture_name)
+            keep.add(texture_name)
+        written += write_if_changed(models_dir / f"{stem}.ply", bop_model_bytes(mesh, texture_name))
+        keep.add(f"{stem}.ply")
+        # Bounds from the written (float32, mm) vertices so models_info matches the file exactly;
+        # the diameter needs all vertex pairs, so it comes precomputed from the asset.
+        v = (mesh.vertices.astype(np.float64) * 1000.0).astype(np.float32).astype(np.float64)
+        lo, hi = v.min(0), v.max(0)
+        info[asset.obj_id] = {
+            "diameter": float(asset.diameter * 1000.0),
+            "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
+            "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]), "size_z": float(hi[2] - lo[2]),
+        }
+    written += write_if_changed(models_dir / "models_info.json", bop_json_bytes(info))
+    keep.add("models_info.json")
+    removed = _remove_unexpected(models_dir, _MODEL_NAME, keep)
+    return {"models": len(info), "written": written, "removed": removed}
+
+
+# --------------------------------------------------------------------------- the writer
+
+
+def camera_json(intrinsics: Intrinsics, outputs: Outputs, images: Sequence[ImageEntry]) -> dict[str, Any]:
+    if outputs.depth_scale == "auto":
+        # Per-image scales live in scene_camera.json; camera.json can hold one, so take the
+        # coarsest used (the one that fits every image's range).
+        scales = {float(r.depth_scale) for r, _ in images}
+        depth_scale = max(scales) if scales else 1.0
+    else:
+        depth_scale = float(outputs.depth_scale)
+    return {
+        "cx": float(intrinsics.cx),
+        "cy": float(intrinsics.cy),
+        "depth_scale": depth_scale,
+        "fx": float(intrinsics.fx),
+        "fy": float(intrinsics.fy),
+        "height": int(intrinsics.height),
+        "width": int(intrinsics.width),
+    }
+
+
+def write_bop(
+    out: Path,
+    split: str,
+    images: Sequence[ImageEntry],
+    models: Sequence[ObjectAsset],
+    intrinsics: Intrinsics,
+    outputs: Outputs,
+    *,
+    coco: bool | None = None,
+    rles: dict[int, list] | None = None,
+    dataset_name: str = "specsynth",
+) -> dict[str, int]:
+    """Write (or bring up to date) ``<out>/bop``; returns counts.
+
+    ``coco`` (default ``outputs.coco``) adds ``scene_gt_coco.json`` per chunk; ``rles`` are
+    precomputed visible-mask RLEs by image index (see :func:`coco.visible_rles`).
+    """
+    from . import coco as coco_mod  # coco imports this module's helpers
+
+    out = Path(out)
+    root = out / "bop"
+    split_dir = root / split
+    with_coco = outputs.coco if coco is None else coco
+    images = sorted_images(images)
+    counts = {"bop_images": len(images), "bop_instances": 0, "bop_chunks": 0, "bop_written": 0, "bop_removed": 0}
+
+    counts["bop_written"] += write_if_changed(root / "camera.json", bop_json_bytes(camera_json(intrinsics, outputs, images)))
+    m = write_models(root / "models", models)
+    counts["bop_models"] = m["models"]
+    counts["bop_written"] += m["written"]
+    counts["bop_removed"] += m["removed"]
+
+    by_chunk: dict[int, list[ImageEntry]] = defaultdict(list)
+    for rec, store in images:
+        _check_image(rec)
+        by_chunk[chunk_and_im_id(rec.index, outputs.chunk_size)[0]].append((rec, store))
+    categories = coco_mod.categories(models, dataset_name)
+
+    for chunk, entries in sorted(by_chunk.items()):
+        cdir = split_dir / f"{chunk:06d}"
+        keep: dict[str, set[str]] = {d: set() for d in MANAGED_DIRS}
+        scene_camera: dict[int, Any] = {}
+        scene_gt: dict[int, Any] = {}
+        scene_gt_info: dict[int, Any] = {}
+        for rec, store in entries:
+            im_id = chunk_and_im_id(rec.index, outputs.chunk_size)[1]
+            # Build the JSON entries before touching files: a corrupt record fails the merge early.
+            scene_camera[im_id] = scene_camera_entry(rec)
+            scene_gt[im_id] = scene_gt_entry(rec)
+            scene_gt_info[im_id] = scene_gt_info_entry(rec)
+            counts["bop_instances"] += len(rec.instances)
+            for sub, name, src in _chunk_files(rec, store, im_id):
+                counts["bop_written"] += place_file(src, cdir / sub / name)
+                keep[sub].add(name)
+
+        # Images first, JSON last: the JSON never names a file that is not in place yet.
+        jsons = {
+            "scene_camera.json": bop_json_bytes(scene_camera),
+            "scene_gt.json": bop_json_bytes(scene_gt),
+            "scene_gt_info.json": bop_json_bytes(scene_gt_info),
+        }
+        if with_coco:
+            doc = coco_mod.chunk_document(entries, outputs.chunk_size, categories, rles, f"{dataset_name}_{split}")
+            jsons["scene_gt_coco.json"] = coco_mod.coco_json_bytes(doc)
+        for name, data in jsons.items():
+            counts["bop_written"] += write_if_changed(cdir / name, data)
+        for name in CHUNK_JSONS:
+            if name not in jsons and (cdir / name).exists():
+                (cdir / name).unlink()
+                counts["bop_removed"] += 1
+        for sub, pattern in MANAGED_DIRS.items():
+            counts["bop_removed"] += _remove_unexpected(cdir / sub, pattern, keep[sub])
+            _rmdir_if_empty(cdir / sub)
+        _remove_unexpected(cdir, _NOTHING, set())  # temp files of an interrupted JSON write
+        counts["bop_chunks"] += 1
+
+    counts["bop_removed"] += _remove_stale_chunks(split_dir, set(by_chunk))
+    return counts
+
+
+def _rmdir_if_empty(folder: Path) -> None:
+    try:
+        folder.rmdir()
+    except OSError:
+        pass  # missing or not empty: both fine
+
+
+def _remove_stale_chunks(split_dir: Path, live: set[int]) -> int:
+    if not split_dir.is_dir():
+        return 0
+    removed = 0
+    for cdir in sorted(split_dir.iterdir()):
+        if not (cdir.is_dir() and _CHUNK_NAME.match(cdir.name)) or int(cdir.name) in live:
+            continue
+        for sub, pattern in MANAGED_DIRS.items():
+            removed += _remove_unexpected(cdir / sub, pattern, set())
+            _rmdir_if_empty(cdir / sub)
+        for name in CHUNK_JSONS:
+            if (cdir / name).exists():
+                (cdir / name).unlink()
+                removed += 1
+        _remove_unexpected(cdir, _NOTHING, set())
+        _rmdir_if_empty(cdir)
+    return removed
