@@ -152,7 +152,8 @@ def _run(ex, calls: list[tuple[Callable, tuple, Any]], on_done: Callable[[Any, A
 
 
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
-          console=None, retries: int = 2) -> BuildSummary:
+          console=None, retries: int = 2, until: str = "merge") -> BuildSummary:
+    """Run the graph; ``until="view"`` stops after the camera stage (used by ``bench``)."""
     from .tasks import BuildContext, task_arrange, task_renders, task_views
 
     out = Path(out)
@@ -220,6 +221,9 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
 
                 run(calls, views_done, views_failed)
                 sv.seconds = time.perf_counter() - t0
+
+                if until == "view":
+                    return summary
 
                 # -------------------------------------------------- render
                 t0 = time.perf_counter()

@@ -190,6 +190,26 @@ def cmd_stats(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    from .bench import equal_error_speedups, run_bench
+
+    _, graph = _compile(args.spec, args.set)
+    console = Console()
+    rows = run_bench(graph, Path(args.out), n_views=args.views, repeats=args.repeats, ref_factor=args.ref_factor,
+                     scale=args.scale, backends=args.backend or None, console=console)
+    t = Table(title=f"bench: {args.spec} ({args.views} view(s), scale {args.scale})")
+    for col in ("backend", "setting", "samples", "seconds", "relMSE", "PSNR dB", "SSIM"):
+        t.add_column(col, justify="left" if col in ("backend", "setting") else "right")
+    for r in rows:
+        t.add_row(r.backend, r.setting, str(r.samples), f"{r.seconds:.2f}", f"{r.rel_mse:.2e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}")
+    console.print(t)
+    for b, e in equal_error_speedups(rows).items():
+        console.print(f"{b}: at the 'high' preset's error ({e['target_psnr']} dB) the fastest setting is "
+                      f"{e['fastest']} ({e['seconds']} s, {e['speedup_vs_high']}x faster than high)")
+    console.print(f"wrote {Path(args.out) / 'bench.csv'}, bench.png, bench.json")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -252,6 +272,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("dataset")
     p.add_argument("--out", required=True, help="folder for stats.png and stats.json")
     p.set_defaults(fn=cmd_stats)
+
+    p = with_set(sub.add_parser("bench", help="render time against image error for every installed backend"))
+    p.add_argument("spec")
+    p.add_argument("--out", required=True)
+    p.add_argument("--views", type=int, default=2)
+    p.add_argument("--repeats", type=int, default=1, help="renders per setting and view (median)")
+    p.add_argument("--ref-factor", type=int, default=4, help="reference samples = factor x high preset")
+    p.add_argument("--scale", type=float, default=0.5, help="image scale (0.5 = 320x240 for VGA specs)")
+    p.add_argument("--backend", action="append", help="only these backends (repeatable)")
+    p.set_defaults(fn=cmd_bench)
 
     args = ap.parse_args(argv)
     try:
