@@ -1,0 +1,342 @@
+"""Scenes as data: scene files (``models.SceneFile``) -> ``SceneDesc`` with normalised meshes and stages.
+
+Built-in scenes are YAML files in ``builtin/`` made only of offline assets (procedural shapes,
+pybullet_data meshes and textures, the HDRIs bundled with bpy). A scene file's meshes are converted
+once into the normalised cache (``<cache>/assets/<hash>.ply``, metres, scale and unit baked in,
+UVs pre-multiplied by the material's ``uv_scale`` so textures tile) and placed by rigid poses.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from .. import assets
+from ..assets import AssetError
+from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
+from ..meshio import MeshData
+from . import procedural
+from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMesh, World
+from .types import SceneDesc, Stage
+
+BUILTIN_DIR = Path(__file__).parent / "builtin"
+SCENE_VERSION = 1  # bump when load_scene's output changes for the same file
+
+__all__ = ["SceneError", "builtin_scenes", "load_scene", "read_scene_file", "scene_fingerprint", "stage_table"]
+
+
+class SceneError(AssetError):
+    """An invalid or unloadable scene file; the message names the file (and field, line)."""
+
+
+def builtin_scenes() -> list[str]:
+    return sorted(p.stem for p in BUILTIN_DIR.glob("*.yaml"))
+
+
+def _scene_path(ref, spec_dir: Path) -> Path:
+    """SceneRef or str -> scene file. A str is a built-in name unless it looks like a file."""
+    name = getattr(ref, "name", None)
+    file = getattr(ref, "file", None)
+    if name is None and file is None:
+        s = str(ref)
+        if s.endswith((".yaml", ".yml", ".json")) or "/" in s or "\\" in s:
+            file = s
+        else:
+            name = s
+    if name is not None:
+        p = BUILTIN_DIR / f"{name}.yaml"
+        if not p.is_file():
+            raise SceneError(f"scene {name!r}: unknown built-in scene; built-in scenes are {', '.join(builtin_scenes())}")
+        return p
+    p = assets.expand_path(file, Path(spec_dir), f"scene file {file!r}")
+    if not p.is_file():
+        raise SceneError(f"scene file {file!r}: not found ({p})")
+    return p
+
+
+# --------------------------------------------------------------------------- reading + validation
+
+
+def _node_at(node, loc) -> yaml.Node | None:
+    """Follow a pydantic error location through a composed YAML tree (for line numbers)."""
+    for key in loc:
+        if isinstance(node, yaml.MappingNode):
+            nxt = next((v for k, v in node.value if k.value == str(key)), None)
+        elif isinstance(node, yaml.SequenceNode) and isinstance(key, int) and key < len(node.value):
+            nxt = node.value[key]
+        else:
+            nxt = None
+        if nxt is None:
+            return node
+        node = nxt
+    return node
+
+
+def read_scene_file(path: Path) -> SceneFile:
+    path = Path(path)
+    text = path.read_text()
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (yaml.YAMLError, json.JSONDecodeError) as e:
+        raise SceneError(f"{path}: cannot parse: {e}") from e
+    if not isinstance(data, dict):
+        raise SceneError(f"{path}: a scene file is a mapping (name, meshes, lights, world, stages)")
+    try:
+        return SceneFile.model_validate(data)
+    except ValidationError as e:
+        root = None
+        if path.suffix != ".json":
+            try:
+                root = yaml.compose(text)
+            except yaml.YAMLError:
+                root = None
+        lines = []
+        for err in e.errors():
+            # Union members add their class name to the location; drop those for readability.
+            loc = [x for x in err["loc"] if not (isinstance(x, str) and x[:1].isupper())]
+            if "source" in loc:  # drop the discriminator tag: it repeats the key the user wrote
+                i = loc.index("source")
+                if i + 1 < len(loc) and loc[i + 1] in ("box", "plane", "cylinder", "file"):
+                    loc = loc[: i + 1] + loc[i + 2 :] if loc[i + 1] == "file" or loc[i + 2 : i + 3] == [loc[i + 1]] or i + 2 == len(loc) else loc
+            where = ".".join(str(x) for x in loc) or "(top)"
+            pos = ""
+            node = _node_at(root, loc) if root is not None else None
+            if node is not None:
+                pos = f":{node.start_mark.line + 1}:{node.start_mark.column + 1}"
+            lines.append(f"{path}{pos}: {where}: {err['msg']}")
+        raise SceneError("\n".join(dict.fromkeys(lines))) from None
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def _source_kind(m: SceneMesh) -> str:
+    return type(m.source).__name__.lower() if not isinstance(m.source, str) else "file"
+
+
+def _rotation(rot) -> np.ndarray:
+    if isinstance(rot[0], (tuple, list)):
+        return np.asarray(rot, dtype=np.float64)
+    return procedural.rpy_matrix(*(math.radians(a) for a in rot))
+
+
+def _scale3(s) -> np.ndarray:
+    return np.full(3, float(s)) if isinstance(s, (int, float)) else np.asarray(s, np.float64)
+
+
+def _uv2(s) -> np.ndarray:
+    return np.full(2, float(s)) if isinstance(s, (int, float)) else np.asarray(s, np.float64)
+
+
+def _source_files(m: SceneMesh, scene_path: Path) -> tuple[Path | None, list[Path], Path | None]:
+    """(source file, every file it reads, its own texture) of a file-based mesh."""
+    if _source_kind(m) != "file":
+        return None, [], None
+    what = f"{scene_path}: meshes.{m.name}.source"
+    p = assets.resolve_data_ref(m.source, scene_path.parent, what)
+    if p.suffix.lower() == ".urdf":
+        files, tex = [p], None
+        for vis in assets.parse_urdf(p):
+            if vis.mesh is not None:
+                files += assets._mesh_and_material_files(vis.mesh, what)
+                if tex is None and vis.mesh.suffix.lower() == ".obj":
+                    tex = assets._mtl_texture(vis.mesh)[0]
+        return p, files, tex
+    files = assets._mesh_and_material_files(p, what)
+    tex = assets._mtl_texture(p)[0] if p.suffix.lower() == ".obj" else None
+    return p, files, tex
+
+
+def _build_geometry(m: SceneMesh, src: Path | None, what: str) -> MeshData:
+    """Mesh in its own frame, metres, scale baked in, UVs multiplied by uv_scale."""
+    kind = _source_kind(m)
+    if kind == "box":
+        mesh = procedural.box(m.source.box)
+    elif kind == "plane":
+        mesh = procedural.plane(m.source.plane)
+    elif kind == "cylinder":
+        mesh = procedural.cylinder(m.source.cylinder.radius, m.source.cylinder.height)
+    elif src.suffix.lower() == ".urdf":
+        parts = []
+        for vis in assets.parse_urdf(src):
+            if vis.mesh is not None:
+                part = assets.finish_mesh(assets.read_any_mesh(vis.mesh)[0], what)
+            else:
+                part = assets._primitive_mesh(vis.primitive)
+            parts.append(procedural.transform_mesh(part, vis.matrix @ np.diag([*vis.scale, 1.0])))
+        if len({p.uv is None for p in parts}) > 1:
+            parts = [replace(p, uv=None) for p in parts]
+        mesh = procedural.concatenate([replace(p, colors=None) for p in parts])
+    else:
+        mesh = assets.finish_mesh(assets.read_any_mesh(src)[0], what)
+    if kind == "file":
+        mesh = procedural.transform_mesh(mesh, np.diag([assets.UNIT_SCALE[m.unit]] * 3 + [1.0]))
+    scale = _scale3(m.transform.scale)
+    if not np.allclose(scale, 1.0):
+        mesh = procedural.transform_mesh(mesh, np.diag([*scale, 1.0]))
+    uv_scale = _uv2(m.material.uv_scale)
+    if mesh.uv is not None and not np.allclose(uv_scale, 1.0):
+        mesh = replace(mesh, uv=(mesh.uv.astype(np.float64) * uv_scale).astype(np.float32))
+    return assets.finish_mesh(mesh, what)
+
+
+def _mesh_cache_key(m: SceneMesh, files: list[Path], what: str) -> str:
+    return assets._hash_json({
+        "v": [assets.CONVERSION_VERSION, SCENE_VERSION],
+        "source": m.source if isinstance(m.source, str) else m.source.model_dump(),
+        "unit": m.unit,
+        "scale": list(_scale3(m.transform.scale)),
+        "uv_scale": list(_uv2(m.material.uv_scale)),
+        "files": [assets.file_digest(f, what) for f in files],
+    })
+
+
+def _material(m: SceneMesh, own_texture: Path | None, scene_path: Path, what: str) -> MaterialIR:
+    mat = m.material
+    tex = None
+    if mat.texture is not None:
+        tex = assets.resolve_data_ref(mat.texture, scene_path.parent, f"{what}.material.texture")
+        assets.check_texture(tex, f"{what}.material.texture")
+    elif mat.base_color is None and own_texture is not None:
+        tex = own_texture
+    base = mat.base_color if mat.base_color is not None else ((1.0, 1.0, 1.0) if tex is not None else (0.8, 0.8, 0.8))
+    return MaterialIR(
+        base_color=tuple(base), use_vertex_colors=False, texture=None if tex is None else str(tex),
+        roughness=mat.roughness, metallic=mat.metallic, specular=mat.specular, emission=tuple(mat.emission),
+    )
+
+
+def _light(ld: LightDef) -> LightIR:
+    T = np.eye(4)
+    T[:3, 3] = ld.translation
+    if ld.look_at is not None:
+        z = np.asarray(ld.translation, float) - np.asarray(ld.look_at, float)  # lights emit along -Z
+        z /= np.linalg.norm(z)
+        up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.999 else np.array([1.0, 0.0, 0.0])
+        x = np.cross(up, z)
+        x /= np.linalg.norm(x)
+        T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    else:
+        T[:3, :3] = _rotation(ld.rotation)
+    return LightIR(
+        kind=ld.kind, pose=as_tuple(T), color=tuple(ld.color), power=float(ld.power), size=tuple(ld.size),
+        spot_angle=ld.spot_angle, spot_blend=ld.spot_blend, sun_angle=ld.sun_angle,
+    )
+
+
+def _envmap_path(world: World, scene_path: Path) -> Path | None:
+    if world.envmap is None:
+        return None
+    if world.envmap in assets.builtin_hdris():
+        return assets.hdri_path(world.envmap)
+    if world.envmap.endswith((".exr", ".hdr")) or "/" in world.envmap:
+        return assets.resolve_data_ref(world.envmap, scene_path.parent, f"{scene_path}: world.envmap")
+    return None  # a built-in name without bpy installed: see _world
+
+
+def _world(world: World, scene_path: Path) -> WorldIR:
+    if world.sky is not None:
+        return WorldIR(kind="sky", strength=world.strength, rotation_z=world.rotation,
+                       sun_elevation=world.sky.sun_elevation, sun_azimuth=world.sky.sun_azimuth,
+                       turbidity=world.sky.turbidity)
+    if world.envmap is not None:
+        p = _envmap_path(world, scene_path)
+        if p is None:
+            # Built-in HDRIs ship with the optional bpy wheel; without it a scene still loads
+            # (rasterising backends never read envmaps) with a neutral grey world instead.
+            warnings.warn(f"{scene_path}: world.envmap {world.envmap!r} is not available (install bpy for the "
+                          "built-in HDRIs); using a grey world", stacklevel=3)
+            return WorldIR(kind="color", color=(0.3, 0.3, 0.3), strength=world.strength)
+        return WorldIR(kind="envmap", envmap=str(p), strength=world.strength, rotation_z=world.rotation)
+    return WorldIR(kind="color", color=tuple(world.color), strength=world.strength)
+
+
+def _stage(sd) -> Stage:
+    poly = [tuple(map(float, p)) for p in sd.polygon]
+    area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(poly, poly[1:] + poly[:1]))
+    if area2 < 0:
+        poly = poly[::-1]
+    return Stage(name=sd.name, polygon=tuple(poly), height=float(sd.height))
+
+
+def load_scene(ref, spec_dir: Path, cache: Path | None = None) -> SceneDesc:
+    """Resolve a scene (built-in name, SceneRef, or file) into a ``SceneDesc``; meshes cached."""
+    path = _scene_path(ref, spec_dir)
+    sf = read_scene_file(path)
+    cache = Path(cache) if cache is not None else assets.cache_dir()
+    meshes = []
+    for m in sf.meshes:
+        what = f"{path}: meshes.{m.name}"
+        try:
+            src, files, own_tex = _source_files(m, path)
+            key = _mesh_cache_key(m, files, what)
+            ply = cache / "assets" / f"{key}.ply"
+            if ply.is_file():
+                mesh_key = assets.file_digest(ply)
+            else:
+                ply, mesh_key = assets.store_mesh(_build_geometry(m, src, what), key, cache)
+            material = _material(m, own_tex, path, what)
+        except SceneError:
+            raise
+        except AssetError as e:
+            raise SceneError(str(e) if str(e).startswith(str(path)) else f"{what}: {e}") from e
+        T = np.eye(4)
+        T[:3, :3] = _rotation(m.transform.rotation)
+        T[:3, 3] = m.transform.translation
+        meshes.append(MeshInstance(name=m.name, mesh_path=str(ply), mesh_key=mesh_key, pose=as_tuple(T),
+                                   material=material))
+    stages = {s.name: _stage(s) for s in sf.stages}
+    wanted = getattr(ref, "stages", None)
+    if wanted:
+        unknown = [s for s in wanted if s not in stages]
+        if unknown:
+            raise SceneError(f"{path}: unknown stage(s) {unknown}; the scene has {', '.join(stages)}")
+        stages = {s: stages[s] for s in wanted}
+    colliders = tuple(m.name for m in sf.meshes if m.collide)
+    return SceneDesc(
+        name=sf.name,
+        meshes=tuple(meshes),
+        lights=tuple(_light(ld) for ld in sf.lights),
+        world=_world(sf.world, path),
+        stages=stages,
+        colliders=None if len(colliders) == len(sf.meshes) else colliders,
+    )
+
+
+def scene_fingerprint(ref, spec_dir: Path) -> str:
+    """Content hash of a scene: its file and every file it references (no mesh conversion)."""
+    path = _scene_path(ref, spec_dir)
+    sf = read_scene_file(path)
+    files = [path]
+    for m in sf.meshes:
+        try:
+            files += _source_files(m, path)[1]
+            if m.material.texture is not None:
+                files.append(assets.resolve_data_ref(m.material.texture, path.parent, f"{path}: meshes.{m.name}"))
+        except SceneError:
+            raise
+        except AssetError as e:
+            raise SceneError(f"{path}: meshes.{m.name}: {e}") from e
+    env = _envmap_path(sf.world, path)
+    if env is not None:
+        files.append(env)
+    h = hashlib.sha256(f"scene v{assets.CONVERSION_VERSION}.{SCENE_VERSION}\n".encode())
+    for f in files:
+        h.update(assets.file_digest(f).encode())
+    # The stage subset is part of what a SceneRef means, so it is part of its key.
+    h.update(json.dumps(getattr(ref, "stages", None)).encode())
+    return h.hexdigest()
+
+
+def stage_table(name, spec_dir: Path | None = None) -> list[tuple[Stage, float, float]]:
+    """(stage, area m^2, height m) of a scene's stages, from the file alone (no meshes built)."""
+    path = _scene_path(name, Path(spec_dir) if spec_dir is not None else Path.cwd())
+    return [(st, st.area, st.height) for st in (_stage(s) for s in read_scene_file(path).stages)]

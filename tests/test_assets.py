@@ -1,0 +1,180 @@
+"""Asset resolution on real files: the YCB-V BOP subset, pybullet_data built-ins, generic meshes."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from specsynth import assets
+from specsynth.assets import AssetError
+from specsynth.meshio import read_mesh
+from specsynth.spec import Material, MeshObject, Objects
+
+YCBV = Path("/work/shared/data/ycbv_models_subset/models")
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture()
+def cache(tmp_path, monkeypatch):
+    c = tmp_path / "cache"
+    monkeypatch.setenv("SPECSYNTH_CACHE", str(c))
+    return c
+
+
+def _resolve(objects, spec_dir, cache):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = assets.resolve_objects(objects, spec_dir, cache)
+    return out, [str(w.message) for w in caught]
+
+
+@pytest.mark.skipif(not YCBV.is_dir(), reason="shared YCB-V subset not present")
+def test_ycbv_subset_as_is(cache, tmp_path):
+    res, warns = _resolve(Objects(path=str(YCBV)), tmp_path, cache)
+    assert [a.obj_id for a in res] == [1, 2]
+    # The missing textures named in the headers warn (naming the file) and fall back to plain.
+    assert any("obj_000001.png" in w and "missing" in w for w in warns)
+    assert all(a.material.texture is None for a in res)
+    import json
+
+    info = json.loads((YCBV / "models_info.json").read_text())
+    for a in res:
+        mesh = read_mesh(a.mesh_path)
+        assert mesh.uv is not None and mesh.normals is not None  # UVs survive for when a texture is added
+        assert 0.0 <= mesh.uv.min() and mesh.uv.max() <= 1.0
+        ref = info[str(a.obj_id)]
+        assert a.diameter == pytest.approx(ref["diameter"] / 1000, rel=2e-3)  # mm -> m
+        assert a.extents == pytest.approx([ref[f"size_{k}"] / 1000 for k in "xyz"], abs=1e-4)
+        assert a.bbox_min == pytest.approx([ref[f"min_{k}"] / 1000 for k in "xyz"], abs=1e-4)
+    # ids subset; names; second resolution is a cache hit that still warns
+    res2, warns2 = _resolve(Objects(path=str(YCBV), ids=[2]), tmp_path, cache)
+    assert [(a.obj_id, a.name) for a in res2] == [(2, "obj_000002")]
+    assert res2[0].mesh_key == res[1].mesh_key and any("missing" in w for w in warns2)
+
+
+def test_bop_folder_errors(cache, tmp_path):
+    with pytest.raises(AssetError, match="BOP website.*never downloads"):
+        assets.object_fingerprints(Objects(path="does/not/exist"), tmp_path)
+    with pytest.raises(AssetError, match="NO_SUCH_VAR_XYZ"):
+        assets.object_fingerprints(Objects(path="${NO_SUCH_VAR_XYZ}/models"), tmp_path)
+    (tmp_path / "m").mkdir()
+    with pytest.raises(AssetError, match="models_info.json"):
+        assets.resolve_objects(Objects(path="m"), tmp_path, cache)
+    (tmp_path / "m" / "models_info.json").write_text('{"1": {}}')
+    with pytest.raises(AssetError, match="obj_000001"):
+        assets.object_fingerprints(Objects(path="m"), tmp_path)
+
+
+def test_mm_and_m_give_same_geometry(cache, tmp_path):
+    mm = DATA / "cube_mm.ply"
+    text = mm.read_text().splitlines()
+    # Same cube written in metres.
+    body = [" ".join([str(float(x) / 1000) for x in ln.split()[:3]] + ln.split()[3:]) if i < 8 else ln
+            for i, ln in enumerate(text[text.index("end_header") + 1:])]
+    m_file = tmp_path / "cube_m.ply"
+    m_file.write_text("\n".join(text[: text.index("end_header") + 1] + body) + "\n")
+    objs = Objects(meshes=[MeshObject(path=str(mm), unit="mm", name="a"), MeshObject(path="cube_m.ply", unit="m", name="b")])
+    a, b = assets.resolve_objects(objs, tmp_path, cache)
+    ma, mb = read_mesh(a.mesh_path), read_mesh(b.mesh_path)
+    np.testing.assert_allclose(ma.vertices, mb.vertices, atol=1e-7)
+    assert np.array_equal(ma.faces, mb.faces) and len(ma.faces) == 12  # quads triangulated
+    assert a.diameter == pytest.approx(0.04 * np.sqrt(3), rel=1e-5)
+    assert (a.obj_id, b.obj_id) == (1, 2)
+    assert ma.colors is not None and a.material.use_vertex_colors
+
+
+def test_bad_meshes_name_the_file(cache, tmp_path):
+    (tmp_path / "empty.obj").write_bytes(b"")
+    (tmp_path / "garbage.stl").write_bytes(b"\x00\x01 not a mesh" * 3)
+    nan = (DATA / "cube_mm.ply").read_text().replace("-20 -20 -20 200", "nan -20 -20 200", 1)
+    (tmp_path / "nan.ply").write_text(nan)
+    cases = {
+        "missing.ply": ("mm", "missing.ply"),
+        "empty.obj": ("m", "empty.obj"),
+        "garbage.stl": ("m", "garbage.stl"),
+        "nan.ply": ("mm", "NaN"),
+        str(DATA / "truncated.ply"): ("mm", "truncated.ply"),
+    }
+    for path, (unit, needle) in cases.items():
+        with pytest.raises(AssetError, match=needle.replace(".", r"\.")) as e:
+            assets.resolve_objects(Objects(meshes=[MeshObject(path=path, unit=unit)]), tmp_path, cache)
+        assert Path(path).name in str(e.value)
+
+
+def test_absurd_units(cache, tmp_path):
+    # A 40 mm cube declared in metres is 69 m across: absurd; a mm cube of 0.04 units is 69 um.
+    with pytest.raises(AssetError, match="check 'unit'"):
+        assets.resolve_objects(Objects(meshes=[MeshObject(path=str(DATA / "cube_mm.ply"), unit="m")]), tmp_path, cache)
+    tiny = (DATA / "cube_mm.ply").read_text().replace("20", "0.02")
+    (tmp_path / "tiny.ply").write_text(tiny)
+    with pytest.raises(AssetError, match="tiny.ply.*check 'unit'"):
+        assets.resolve_objects(Objects(meshes=[MeshObject(path="tiny.ply", unit="mm")]), tmp_path, cache)
+
+
+def test_corrupt_texture_is_an_error_missing_is_a_warning(cache, tmp_path):
+    text = (DATA / "cube_mm.ply").read_text().replace("comment tiny", "comment TextureFile tex.png\ncomment tiny")
+    (tmp_path / "t.ply").write_text(text)
+    _, warns = _resolve(Objects(meshes=[MeshObject(path="t.ply", unit="mm")]), tmp_path, cache)
+    assert any("tex.png" in w for w in warns)
+    (tmp_path / "tex.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    with pytest.raises(AssetError, match="tex.png.*unreadable"):
+        assets.resolve_objects(Objects(meshes=[MeshObject(path="t.ply", unit="mm")]), tmp_path, cache)
+
+
+def test_builtins_metric_and_upright(cache, tmp_path):
+    objs = Objects(path=str(YCBV) if YCBV.is_dir() else None, builtin=["duck", "teddy", "mug", "jenga"],
+                   meshes=[] if YCBV.is_dir() else [MeshObject(path=str(DATA / "cube_mm.ply"), unit="mm")])
+    res = {a.name: a for a in _resolve(objs, tmp_path, cache)[0]}
+    duck, teddy, mug, jenga = (res[n] for n in ("duck", "teddy", "mug", "jenga"))
+    assert 0.05 <= duck.diameter <= 0.2 and 0.03 <= teddy.diameter <= 0.3
+    assert 0.05 <= mug.diameter <= 0.2
+    assert jenga.extents == pytest.approx((0.15, 0.05, 0.03), abs=1e-4)
+    # duck.obj is Y-up: made canonical (+Z up), it sits on z ~ 0 and is longer than tall.
+    assert duck.extents[2] < duck.extents[0] and abs(duck.bbox_min[2]) < 0.01
+    assert duck.material.texture.endswith("duckCM.png") and read_mesh(duck.mesh_path).uv is not None
+    # Built-ins follow the BOP ids in list order.
+    first = max(a.obj_id for a in res.values() if a.name not in ("duck", "teddy", "mug", "jenga"))
+    assert [duck.obj_id, teddy.obj_id, mug.obj_id, jenga.obj_id] == list(range(first + 1, first + 5))
+    assert "random_urdfs/000" in assets.builtin_objects() and "duck" in assets.builtin_objects()
+    with pytest.raises(AssetError, match="did you mean duck"):
+        assets.object_fingerprints(Objects(builtin=["duk"]), tmp_path)
+
+
+def test_material_overrides(cache, tmp_path):
+    objs = Objects(
+        builtin=["duck", "mug"],
+        materials={"default": Material(roughness=0.9), "duck": Material(color=(0.1, 0.2, 0.3), metallic=1.0)},
+    )
+    duck, mug = assets.resolve_objects(objs, tmp_path, cache)
+    assert duck.material.texture is None and duck.material.base_color == (0.1, 0.2, 0.3)
+    assert not duck.material.use_vertex_colors and duck.material.metallic == 1.0
+    assert mug.material.roughness == 0.9
+
+
+def test_fingerprints_stable_and_content_sensitive(tmp_path):
+    f = tmp_path / "c.ply"
+    shutil.copy(DATA / "cube_mm.ply", f)
+    objs = Objects(meshes=[MeshObject(path="c.ply", unit="mm", name="c")], builtin=["duck"])
+    a = assets.object_fingerprints(objs, tmp_path)
+    assert a == assets.object_fingerprints(objs, tmp_path) and set(a) == {"c", "duck"}
+    f.write_text(f.read_text().replace("200 30 30", "201 30 30", 1))
+    os.utime(f, ns=(f.stat().st_atime_ns, f.stat().st_mtime_ns + 10**9))
+    b = assets.object_fingerprints(objs, tmp_path)
+    assert b["c"] != a["c"] and b["duck"] == a["duck"]
+    objs_cm = Objects(meshes=[MeshObject(path="c.ply", unit="cm", name="c")])
+    assert assets.object_fingerprints(objs_cm, tmp_path)["c"] != b["c"]
+
+
+def test_hdris():
+    names = assets.builtin_hdris()
+    if not names:
+        pytest.skip("bpy wheel not installed")
+    assert len(names) == 8 and "interior" in names
+    assert assets.hdri_path("interior").suffix == ".exr"
+    with pytest.raises(AssetError, match="unknown"):
+        assets.hdri_path("nope")
