@@ -163,7 +163,7 @@ def cmd_scenes(args) -> int:
         t.add_column(col)
     for name in builtin_scenes():
         for stage, area, height in stage_table(name):
-            t.add_row(name, stage, f"{area:.3f}", f"{height:.3f}")
+            t.add_row(name, stage.name, f"{area:.3f}", f"{height:.3f}")
     Console().print(t)
     return 0
 

@@ -64,10 +64,15 @@ class Job:
     stage: str
     id: str
     key: str
-    seed: int
+    root_seed: int
     arr: int
     cam: int | None = None
     upstream: str | None = None  # key of the job this one reads
+
+    @property
+    def seed(self) -> int:
+        # Derived on demand: planning a million jobs never needs their seeds.
+        return seeds.job_seed(self.root_seed, self.id)
 
 
 def _dist_version(name: str) -> str:
@@ -120,17 +125,17 @@ class JobGraph:
 
     def arrange_job(self, arr: int) -> Job:
         jid = arr_id(arr)
-        return Job("arrange", jid, keys.job_key(self.stage_digests["arrange"], jid), seeds.job_seed(self.spec.seed, jid), arr)
+        return Job("arrange", jid, keys.job_key(self.stage_digests["arrange"], jid), self.spec.seed, arr)
 
     def view_job(self, arr: int, cam: int, arrange_key: str | None = None) -> Job:
         jid = view_id(arr, cam)
         up = arrange_key or self.arrange_job(arr).key
-        return Job("view", jid, keys.job_key(self.stage_digests["view"], jid, up), seeds.job_seed(self.spec.seed, jid), arr, cam, up)
+        return Job("view", jid, keys.job_key(self.stage_digests["view"], jid, up), self.spec.seed, arr, cam, up)
 
     def render_job(self, arr: int, cam: int, view_key: str | None = None) -> Job:
         jid = render_id(arr, cam)
         up = view_key or self.view_job(arr, cam).key
-        return Job("render", jid, keys.job_key(self.stage_digests["render"], jid, up), seeds.job_seed(self.spec.seed, jid), arr, cam, up)
+        return Job("render", jid, keys.job_key(self.stage_digests["render"], jid, up), self.spec.seed, arr, cam, up)
 
     def arrangement_jobs(self, arr: int) -> tuple[Job, list[Job], list[Job]]:
         a = self.arrange_job(arr)
@@ -167,8 +172,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     try:
         asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
     except AssetError as e:
-        field = getattr(e, "field", None) or "objects"
-        problems.append(loaded.locate(field, str(e)))
+        field = getattr(e, "field", None) or ("objects.path" if "objects.path" in str(e) else "objects")
+        problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))
         asset_hashes = {}
     scene_hashes = {}
     for i, ref in enumerate(spec.scenes):

@@ -8,7 +8,7 @@ loaded data and located as ``--set dotted.path``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ class LoadedSpec:
     path: Path
     data: dict[str, Any]  # the validated input data, overrides applied
     positions: dict[tuple, tuple[int, int]]
+    overrides: dict[tuple, Any] = field(default_factory=dict)
 
     @property
     def directory(self) -> Path:
@@ -54,7 +55,7 @@ class LoadedSpec:
     def locate(self, dotted: str, message: str) -> Problem:
         """A problem found after schema validation (e.g. a missing asset), located in the file."""
         loc = tuple(int(p) if p.isdigit() else p for p in dotted.split(".")) if dotted else ()
-        return _problem(str(self.path), loc, message, self.positions, {}, self.data)
+        return _problem(str(self.path), loc, message, self.positions, self.overrides, self.data)
 
 
 class _Loader(yaml.SafeLoader):
@@ -245,4 +246,4 @@ def load_spec(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> 
         problems = [_problem(file, tuple(err["loc"]), _message(err), positions, over_paths, data) for err in e.errors()]
         problems.sort(key=lambda pr: (pr.line or 0, pr.col or 0, pr.path))
         raise SpecError(problems) from None
-    return LoadedSpec(spec=spec, path=p.resolve(), data=data, positions=positions)
+    return LoadedSpec(spec=spec, path=p.resolve(), data=data, positions=positions, overrides=over_paths)
