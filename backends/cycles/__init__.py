@@ -1,0 +1,295 @@
+"""Cycles (Blender 5.0, bpy wheel) render backend: PBR path tracing on the CPU.
+
+See docs/backends/cycles.md for the preset mapping and the traps this avoids.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from specsynth.colour import check_finite, linear_to_srgb8
+from specsynth.conventions import opencv_to_blender_c2w
+from specsynth.ir import CameraIR, RenderResult, RenderScene
+from specsynth.spec import QualityPreset
+
+from .settings import PathSettings, blender_intrinsics, coerce_options, path_settings, resolve_threads
+
+__all__ = ["CyclesBackend"]
+
+# Data-blocks the backend keeps for its whole life (camera, mask material and world).
+_KEEP_PREFIX = "__specsynth"
+
+
+def _read_exr_rgb(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        ch = f.channels()
+        if "RGB" in ch:
+            rgb = np.asarray(ch["RGB"].pixels, dtype=np.float32)
+        elif "RGBA" in ch:
+            rgb = np.asarray(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
+        else:
+            rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in ("R", "G", "B")], axis=-1)
+    return np.ascontiguousarray(rgb[..., :3])
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Blender prints a 'Saved: ...' line per render straight to fd 1; keep worker logs readable."""
+    fd = 1  # Blender writes to the C-level stdout whatever sys.stdout has been replaced with
+    try:
+        sys.stdout.flush()
+    except (AttributeError, OSError, ValueError):
+        pass
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+class CyclesBackend:
+    name: ClassVar[str] = "cycles"
+    draws_scene: ClassVar[bool] = True
+
+    def __init__(self, options: Any = None, *, threads: int = 0) -> None:
+        import bpy  # once per worker process; the core never imports bpy
+
+        self._bpy = bpy
+        self.options = coerce_options(options)
+        self.threads = resolve_threads(self.options, threads)
+        self._tmp = Path(tempfile.mkdtemp(prefix="specsynth-cycles-"))
+        self._scene_ir: RenderScene | None = None
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        self._configure_static()
+        self._cam_obj = self._make_camera()
+        from .build import build_mask_material, build_mask_world
+
+        self._mask_mat = build_mask_material(bpy)
+        self._mask_world = build_mask_world(bpy)
+
+    # ------------------------------------------------------------------ setup
+
+    def version(self) -> str:
+        app = self._bpy.app
+        h = app.build_hash.decode() if isinstance(app.build_hash, bytes) else str(app.build_hash)
+        return f"cycles (blender {app.version_string}, {h})"
+
+    def _configure_static(self) -> None:
+        """Settings that never change between renders; anything per-render is set in _apply."""
+        sc = self._bpy.context.scene
+        sc.render.engine = "CYCLES"
+        cy = sc.cycles
+        cy.device = "CPU"
+        cy.use_animated_seed = False
+        cy.sample_clamp_direct = 0.0
+        # Glossy filter (default 1.0) trades bias for less noise; keep the estimate unbiased.
+        cy.blur_glossy = 0.0
+        cy.pixel_filter_type = "BOX"
+        cy.filter_width = 1.0
+        cy.volume_bounces = 0
+        cy.transparent_max_bounces = 8
+        cy.denoiser = "OPENIMAGEDENOISE"
+        cy.denoising_use_gpu = False
+        cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        cy.denoising_prefilter = "ACCURATE"
+        cy.denoising_quality = "HIGH"
+        r = sc.render
+        # Persistent data silently ignores changed sample counts (see measurements.md): keep it off.
+        r.use_persistent_data = False
+        r.threads_mode = "FIXED"
+        r.threads = self.threads
+        r.resolution_percentage = 100
+        r.use_border = False
+        r.film_transparent = False
+        r.use_compositing = False
+        r.use_sequencer = False
+        r.use_file_extension = True
+        vs = sc.view_settings
+        # 5.0 defaults to AgX; the EXR is linear either way but keep the display path neutral too.
+        vs.view_transform = "Standard"
+        vs.look = "None"
+        vs.exposure = 0.0
+        vs.gamma = 1.0
+        sc.display_settings.display_device = "sRGB"
+        im = r.image_settings
+        im.media_type = "IMAGE"
+        im.file_format = "OPEN_EXR"
+        im.color_mode = "RGB"
+        im.color_depth = "32"
+        im.exr_codec = "NONE"  # the file lives for milliseconds: skip compression
+
+    def _make_camera(self):
+        bpy = self._bpy
+        cam = bpy.data.cameras.new("__specsynth_cam")
+        cam.use_fake_user = True
+        cam.type = "PERSP"
+        cam.sensor_fit = "HORIZONTAL"
+        ob = bpy.data.objects.new("__specsynth_cam", cam)
+        ob.use_fake_user = True
+        sc = bpy.context.scene
+        sc.collection.objects.link(ob)
+        sc.camera = ob
+        return ob
+
+    # ------------------------------------------------------------------ load
+
+    def _clear(self) -> None:
+        """Drop the previous arrangement's data-blocks so memory stays flat over many loads."""
+        bpy = self._bpy
+        sc = bpy.context.scene
+        for ob in list(bpy.data.objects):
+            if ob is not self._cam_obj:
+                bpy.data.objects.remove(ob, do_unlink=True)
+        for coll in (bpy.data.meshes, bpy.data.materials, bpy.data.lights, bpy.data.images, bpy.data.worlds):
+            for block in list(coll):
+                if not block.name.startswith(_KEEP_PREFIX):
+                    coll.remove(block, do_unlink=True)
+        sc.world = None
+        bpy.data.orphans_purge(do_local_ids=True, do_linked_ids=True, do_recursive=True)
+
+    def load(self, scene: RenderScene) -> None:
+        from .build import build_light, build_meshes, build_world
+
+        bpy = self._bpy
+        self._clear()
+        self._scene_ir = None
+        sc = bpy.context.scene
+        coll = sc.collection
+        build_meshes(bpy, coll, scene.meshes)
+        self._lights = [build_light(bpy, coll, i, li) for i, li in enumerate(scene.lights)]
+        self._world = build_world(bpy, scene.world)
+        sc.world = self._world
+        self._scene_ir = scene
+
+    # ------------------------------------------------------------------ render
+
+    def _set_camera(self, camera: CameraIR) -> None:
+        from mathutils import Matrix
+
+        sc = self._bpy.context.scene
+        bi = blender_intrinsics(camera)
+        cam = self._cam_obj.data
+        cam.sensor_fit = "HORIZONTAL"
+        cam.sensor_width = bi.sensor_width
+        cam.lens = bi.lens
+        cam.shift_x, cam.shift_y = bi.shift_x, bi.shift_y
+        cam.clip_start, cam.clip_end = float(camera.near), float(camera.far)
+        r = sc.render
+        r.resolution_x, r.resolution_y = int(camera.width), int(camera.height)
+        r.pixel_aspect_x, r.pixel_aspect_y = bi.pixel_aspect_x, bi.pixel_aspect_y
+        self._cam_obj.matrix_world = Matrix(opencv_to_blender_c2w(camera.T_c2w).tolist())
+
+    def _apply(self, ps: PathSettings, seed: int) -> None:
+        cy = self._bpy.context.scene.cycles
+        cy.samples = ps.samples
+        cy.seed = int(seed) % (2**31)
+        cy.max_bounces = ps.max_bounces
+        cy.diffuse_bounces = ps.diffuse_bounces
+        cy.glossy_bounces = ps.glossy_bounces
+        cy.transmission_bounces = ps.transmission_bounces
+        cy.use_denoising = ps.denoise
+        cy.use_adaptive_sampling = ps.adaptive_threshold is not None
+        if ps.adaptive_threshold is not None:
+            cy.adaptive_threshold = ps.adaptive_threshold
+            cy.adaptive_min_samples = 0
+        cy.sample_clamp_indirect = ps.clamp_indirect
+        cy.pixel_filter_type = "BOX"
+        cy.filter_width = 1.0
+        self._bpy.context.scene.render.threads = self.threads
+
+    def _render_exr(self, stem: str) -> np.ndarray:
+        bpy = self._bpy
+        sc = bpy.context.scene
+        path = self._tmp / f"{stem}.exr"
+        sc.render.filepath = str(path)
+        with _quiet_stdout():
+            bpy.ops.render.render(write_still=True)
+        try:
+            return _read_exr_rgb(path)
+        finally:
+            path.unlink(missing_ok=True)
+
+    def _require_scene(self) -> RenderScene:
+        if self._scene_ir is None:
+            raise RuntimeError("cycles: render() called before load()")
+        return self._scene_ir
+
+    def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None) -> RenderResult:
+        scene = self._require_scene()
+        ps = path_settings(
+            quality, self.options, has_glossy=scene.has_glossy, has_transmission=scene.has_transmission, clamp=clamp
+        )
+        t0 = time.perf_counter()
+        self._set_camera(camera)
+        self._apply(ps, seed)
+        linear = self._render_exr("beauty")
+        seconds = time.perf_counter() - t0
+        check_finite(linear, "cycles render")
+        stats = ps.stats()
+        stats.update(seconds=round(seconds, 4), threads=self.threads, seed=int(seed) % (2**31))
+        return RenderResult(rgb=linear_to_srgb8(linear), linear=linear, stats=stats)
+
+    def render_index_masks(self, camera: CameraIR) -> np.ndarray:
+        """HxW int32 instance map from Cycles itself: -1 background/scene geometry, else MeshInstance.inst.
+
+        The emission override renders each object's pass index (inst + 1) as radiance; with one sample at
+        the pixel centre (box filter of width ~0) and no bounces every pixel holds exactly one id.
+        """
+        self._require_scene()
+        bpy = self._bpy
+        sc = bpy.context.scene
+        vl = bpy.context.view_layer
+        cy = sc.cycles
+        self._set_camera(camera)
+        saved = dict(
+            samples=cy.samples, max_bounces=cy.max_bounces, use_denoising=cy.use_denoising,
+            use_adaptive_sampling=cy.use_adaptive_sampling, filter_width=cy.filter_width,
+            sample_clamp_indirect=cy.sample_clamp_indirect,
+        )  # fmt: skip
+        hidden = [ob for ob in sc.objects if ob.type == "LIGHT" and not ob.hide_render]
+        world = sc.world
+        try:
+            cy.samples = 1
+            cy.max_bounces = 0
+            cy.use_denoising = False
+            cy.use_adaptive_sampling = False
+            cy.filter_width = 0.01  # Cycles' minimum: the single sample sits at the pixel centre
+            cy.sample_clamp_indirect = 0.0
+            vl.material_override = self._mask_mat
+            sc.world = self._mask_world
+            for ob in hidden:
+                ob.hide_render = True
+            ids = self._render_exr("mask")[..., 0]
+        finally:
+            vl.material_override = None
+            sc.world = world
+            for ob in hidden:
+                ob.hide_render = False
+            for k, v in saved.items():
+                setattr(cy, k, v)
+        return (np.rint(ids).astype(np.int32) - 1).clip(min=-1)
+
+    def close(self) -> None:
+        if self._bpy is not None:
+            self._clear()
+            self._scene_ir = None
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __del__(self) -> None:  # the temp dir must not outlive a crashed worker loop
+        tmp = getattr(self, "_tmp", None)
+        if tmp is not None and os.path.isdir(tmp):
+            shutil.rmtree(tmp, ignore_errors=True)

@@ -1,0 +1,1 @@
+"""Test helpers shipped with specsynth for plugin authors (see ``specsynth.testing.conformance``)."""

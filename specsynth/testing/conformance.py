@@ -1,0 +1,464 @@
+"""The conformance suite every render backend must pass (in the spirit of fsspec's abstract tests).
+
+Backend-agnostic: it talks to a backend only through ``specsynth.backend_api`` (discovery by entry
+point name, then the ``RenderBackend`` protocol) and builds its own tiny scene in code, so it can
+run against any plugin::
+
+    from specsynth.testing.conformance import check_backend
+    check_backend("mitsuba", {"name": "mitsuba"}, tmp_path)
+
+or, one pytest test per check (see tests/test_backend_conformance.py)::
+
+    ctx = ConformanceContext("photo", {"name": "photo"}, tmp_path)
+    for name, check in CHECKS.items(): check(ctx)
+    ctx.close()
+
+The scene: a 1 m grey plane (scene geometry), a textured box and a vertex-coloured sphere
+(dataset objects), a sun and an area light, a grey world; an 80x60 camera with an off-centre
+principal point. Renders use the paper's "low" preset, so path tracers stay cheap.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import pickle
+import subprocess
+import sys
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..backend_api import RenderBackend, load_backend
+from ..colour import check_finite
+from ..ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderResult, RenderScene, WorldIR, as_tuple
+from ..meshio import MeshData, mesh_bytes, write_mesh
+from ..spec import PAPER_PRESETS
+
+WIDTH, HEIGHT = 80, 60
+K = ((90.0, 0.0, 40.3), (0.0, 90.0, 28.7), (0.0, 0.0, 1.0))
+SEED = 1234
+QUALITY = PAPER_PRESETS["low"]
+
+BOX_CENTRE = (0.07, 0.0, 0.04)
+BOX_SIZE = 0.08
+SPHERE_CENTRE = (-0.07, 0.02, 0.045)
+SPHERE_RADIUS = 0.045
+EYE = (0.05, -0.45, 0.3)
+EYE_MOVED = (-0.32, -0.33, 0.22)
+TARGET = (0.0, 0.0, 0.03)
+
+# A 3x3 window around a projected object centre must differ from the render without that object
+# by at least this much (mean absolute difference, 8-bit levels).
+SILHOUETTE_MIN_DIFF = 12.0
+
+
+class ConformanceError(AssertionError):
+    pass
+
+
+def _require(cond: bool, backend: str, msg: str) -> None:
+    if not cond:
+        raise ConformanceError(f"backend {backend!r}: {msg}")
+
+
+# --------------------------------------------------------------------------- the test scene
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV world-to-camera rotation and translation of a camera at ``eye`` looking at ``target``."""
+    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ eye
+
+
+def make_camera(eye=EYE, target=TARGET) -> CameraIR:
+    R, t = look_at(eye, target)
+    return CameraIR(K=K, width=WIDTH, height=HEIGHT, R_w2c=as_tuple(R), t_w2c=as_tuple(t), near=0.01, far=10.0)
+
+
+def project(camera: CameraIR, point_w) -> tuple[float, float, float]:
+    """OpenCV pixel coordinates (integer = pixel centre) and depth of a world point."""
+    x_c = np.asarray(camera.R_w2c) @ np.asarray(point_w, dtype=np.float64) + np.asarray(camera.t_w2c)
+    uvw = camera.K_array @ x_c
+    return float(uvw[0] / uvw[2]), float(uvw[1] / uvw[2]), float(x_c[2])
+
+
+def _box_mesh(size: float) -> MeshData:
+    """Cube with one quad of 4 vertices per face, so every face has flat normals and its own UVs."""
+    h = size / 2
+    verts, normals, uvs, faces = [], [], [], []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            n = np.zeros(3)
+            n[axis] = sign
+            a, b = [i for i in range(3) if i != axis]
+            base = len(verts)
+            for (s, t) in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                p = np.zeros(3)
+                p[axis], p[a], p[b] = sign * h, s * h, t * h
+                verts.append(p)
+                normals.append(n)
+                uvs.append(((s + 1) / 2, (t + 1) / 2))
+            tri = [(base, base + 1, base + 2), (base, base + 2, base + 3)]
+            # Counter-clockwise seen from outside: flip where the quad's winding points inwards.
+            e1, e2 = verts[base + 1] - verts[base], verts[base + 2] - verts[base]
+            if np.dot(np.cross(e1, e2), n) < 0:
+                tri = [(i, k, j) for (i, j, k) in tri]
+            faces += tri
+    return MeshData(
+        vertices=np.asarray(verts, np.float32),
+        faces=np.asarray(faces, np.int32),
+        normals=np.asarray(normals, np.float32),
+        uv=np.asarray(uvs, np.float32),
+    )
+
+
+def _sphere_mesh(radius: float, n_lat: int = 12, n_lon: int = 24) -> MeshData:
+    """UV sphere with smooth normals and vertex colours that vary with position."""
+    verts, faces = [], []
+    for i in range(n_lat + 1):
+        theta = math.pi * i / n_lat
+        for j in range(n_lon + 1):
+            phi = 2 * math.pi * j / n_lon
+            verts.append((math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)))
+    for i in range(n_lat):
+        for j in range(n_lon):
+            a = i * (n_lon + 1) + j
+            b = a + n_lon + 1
+            if i > 0:
+                faces.append((a, b, a + 1))
+            if i < n_lat - 1:
+                faces.append((a + 1, b, b + 1))
+    unit = np.asarray(verts, np.float64)
+    colors = np.empty((len(unit), 4), np.uint8)
+    colors[:, 0] = 40
+    colors[:, 1] = np.round(120 + 100 * unit[:, 2]).astype(np.uint8)
+    colors[:, 2] = np.round(140 + 100 * unit[:, 0]).astype(np.uint8)
+    colors[:, 3] = 255
+    return MeshData(
+        vertices=(unit * radius).astype(np.float32),
+        faces=np.asarray(faces, np.int32),
+        normals=unit.astype(np.float32),
+        colors=colors,
+    )
+
+
+def _plane_mesh(size: float) -> MeshData:
+    h = size / 2
+    return MeshData(
+        vertices=np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]], np.float32),
+        faces=np.array([[0, 1, 2], [0, 2, 3]], np.int32),
+        normals=np.tile(np.array([[0, 0, 1]], np.float32), (4, 1)),
+    )
+
+
+def _checker(path: Path, n: int = 32, cells: int = 4) -> None:
+    from PIL import Image
+
+    ij = np.indices((n, n)) // (n // cells)
+    on = ((ij[0] + ij[1]) % 2).astype(bool)
+    img = np.where(on[..., None], np.array([220, 40, 30], np.uint8), np.array([30, 60, 220], np.uint8))
+    Image.fromarray(img.astype(np.uint8)).save(path)
+
+
+def _write(folder: Path, name: str, mesh: MeshData) -> tuple[str, str]:
+    path = folder / f"{name}.ply"
+    write_mesh(path, mesh.validate(name))
+    return str(path), hashlib.sha256(mesh_bytes(mesh)).hexdigest()
+
+
+def _pose(translation, yaw_deg: float = 0.0) -> tuple:
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = translation
+    return as_tuple(T)
+
+
+def _light_pose(position, target=(0.0, 0.0, 0.0)) -> tuple:
+    """World-from-light with the light's local -Z pointing at ``target``."""
+    position, target = np.asarray(position, float), np.asarray(target, float)
+    z = position - target
+    z /= np.linalg.norm(z)
+    x = np.cross((0.0, 1.0, 0.0) if abs(z[1]) < 0.9 else (1.0, 0.0, 0.0), z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    T[:3, 3] = position
+    return as_tuple(T)
+
+
+@dataclass(frozen=True)
+class ConformanceScenes:
+    full: RenderScene  # plane + box + sphere
+    no_box: RenderScene  # plane + sphere
+    no_sphere: RenderScene  # plane + box
+    no_objects: RenderScene  # plane only
+    camera: CameraIR
+    camera_moved: CameraIR
+
+
+def build_scenes(folder: str | Path) -> ConformanceScenes:
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    texture = folder / "checker.png"
+    _checker(texture)
+    box_path, box_key = _write(folder, "box", _box_mesh(BOX_SIZE))
+    sphere_path, sphere_key = _write(folder, "sphere", _sphere_mesh(SPHERE_RADIUS))
+    plane_path, plane_key = _write(folder, "plane", _plane_mesh(1.0))
+
+    plane = MeshInstance("stage", plane_path, plane_key, _pose((0, 0, 0)), MaterialIR(base_color=(0.5, 0.5, 0.5)))
+    box = MeshInstance(
+        "obj_000001_0", box_path, box_key, _pose(BOX_CENTRE, 30.0),
+        MaterialIR(base_color=(1.0, 1.0, 1.0), texture=str(texture), roughness=0.6), obj_id=1, inst=0,
+    )
+    sphere = MeshInstance(
+        "obj_000002_0", sphere_path, sphere_key, _pose(SPHERE_CENTRE),
+        MaterialIR(base_color=(1.0, 1.0, 1.0), use_vertex_colors=True, roughness=0.4), obj_id=2, inst=1,
+    )
+    lights = (
+        LightIR(kind="sun", pose=_light_pose((0.3, -0.4, 1.0)), power=3.0),
+        LightIR(kind="area", pose=_light_pose((0.4, -0.5, 0.7)), power=40.0, size=(0.3, 0.3)),
+    )
+    world = WorldIR(kind="color", color=(0.25, 0.25, 0.25))
+
+    def scene(*meshes):
+        return RenderScene(meshes=meshes, lights=lights, world=world)
+
+    return ConformanceScenes(
+        full=scene(plane, box, sphere),
+        no_box=scene(plane, sphere),
+        no_sphere=scene(plane, box),
+        no_objects=scene(plane),
+        camera=make_camera(EYE),
+        camera_moved=make_camera(EYE_MOVED),
+    )
+
+
+# --------------------------------------------------------------------------- running a backend
+
+
+class ConformanceContext:
+    """One backend instance and the test scenes, shared by the checks (backends are slow to start)."""
+
+    def __init__(
+        self, name: str, options: Any = None, tmp_path: str | Path = ".", *, threads: int = 1, backend_class: type | None = None
+    ):
+        """``backend_class`` tests a class directly (before its entry point is registered, or a
+        deliberately broken variant); by default the class is found by ``name`` like the core does."""
+        self.name = name
+        if backend_class is not None:
+            self.__dict__["backend_class"] = backend_class  # pre-fills the cached_property
+        self.options = {"name": name} if options is None else options
+        self.threads = threads
+        self.tmp_path = Path(tmp_path)
+        self.scenes = build_scenes(self.tmp_path / "conformance_scene")
+        self._loaded: RenderScene | None = None
+
+    @cached_property
+    def backend_class(self) -> type:
+        return load_backend(self.name)
+
+    @cached_property
+    def backend(self):
+        return self.backend_class(self.options, threads=self.threads)
+
+    def load(self, scene: RenderScene) -> None:
+        self.backend.load(scene)
+        self._loaded = scene
+
+    def render(self, scene: RenderScene | None = None, camera: CameraIR | None = None, seed: int = SEED) -> RenderResult:
+        scene = self.scenes.full if scene is None else scene
+        if self._loaded is not scene:
+            self.load(scene)
+        return self.backend.render(self.scenes.camera if camera is None else camera, QUALITY, seed)
+
+    def close(self) -> None:
+        if "backend" in self.__dict__:
+            self.backend.close()
+            del self.__dict__["backend"]
+        self._loaded = None
+
+
+def _rgb(ctx: ConformanceContext, result: RenderResult) -> np.ndarray:
+    rgb = result.rgb
+    _require(isinstance(rgb, np.ndarray), ctx.name, f"rgb is {type(rgb).__name__}, not a numpy array")
+    _require(rgb.dtype == np.uint8, ctx.name, f"rgb dtype is {rgb.dtype}, expected uint8")
+    _require(rgb.shape == (HEIGHT, WIDTH, 3), ctx.name, f"rgb shape is {rgb.shape}, expected {(HEIGHT, WIDTH, 3)}")
+    return rgb
+
+
+def _window(img: np.ndarray, u: float, v: float, r: int = 1) -> np.ndarray:
+    x, y = int(round(u)), int(round(v))
+    return img[max(y - r, 0) : y + r + 1, max(x - r, 0) : x + r + 1].astype(np.float64)
+
+
+# --------------------------------------------------------------------------- the checks
+
+
+def check_discovery(ctx: ConformanceContext) -> None:
+    cls = ctx.backend_class
+    found = load_backend(ctx.name)
+    _require(found is cls, ctx.name, f"entry point {ctx.name!r} loads {found.__qualname__}, not {cls.__qualname__}")
+    _require(getattr(cls, "name", None) == ctx.name, ctx.name, f"class {cls.__name__}.name is {getattr(cls, 'name', None)!r}")
+    _require(isinstance(getattr(cls, "draws_scene", None), bool), ctx.name, "draws_scene must be a bool class attribute")
+    _require(isinstance(ctx.backend, RenderBackend), ctx.name, "instance does not satisfy the RenderBackend protocol")
+
+
+def check_version(ctx: ConformanceContext) -> None:
+    v = ctx.backend.version()
+    _require(isinstance(v, str) and v.strip() != "", ctx.name, f"version() must be a non-empty str, got {v!r}")
+    _require("\n" not in v, ctx.name, "version() must be one line")
+    _require(ctx.backend.version() == v, ctx.name, "version() changed between calls")
+
+
+def check_render_shape(ctx: ConformanceContext) -> None:
+    res = ctx.render()
+    _require(isinstance(res, RenderResult), ctx.name, f"render() returned {type(res).__name__}, not RenderResult")
+    rgb = _rgb(ctx, res)
+    _require(isinstance(res.stats, dict), ctx.name, "stats must be a dict")
+    _require(int(rgb.max()) > int(rgb.min()), ctx.name, "the image is a single flat colour")
+    if res.linear is not None:
+        lin = res.linear
+        _require(lin.shape == (HEIGHT, WIDTH, 3), ctx.name, f"linear shape is {lin.shape}, expected {(HEIGHT, WIDTH, 3)}")
+        _require(np.issubdtype(lin.dtype, np.floating), ctx.name, f"linear dtype is {lin.dtype}, expected float")
+        check_finite(lin, f"backend {ctx.name!r}: linear")
+
+
+def check_determinism(ctx: ConformanceContext) -> None:
+    """Same inputs and seed give identical pixels, whatever was rendered in between."""
+    a = _rgb(ctx, ctx.render(seed=SEED))
+    ctx.render(seed=SEED + 1)
+    ctx.render(camera=ctx.scenes.camera_moved, seed=SEED)
+    b = _rgb(ctx, ctx.render(seed=SEED))
+    n = int((a != b).any(axis=-1).sum())
+    _require(n == 0, ctx.name, f"same scene, camera and seed gave {n} different pixel(s) in one process")
+
+
+def check_fresh_process_determinism(ctx: ConformanceContext) -> None:
+    """The same render in a new Python process gives identical pixels."""
+    a = _rgb(ctx, ctx.render(seed=SEED))
+    job = ctx.tmp_path / "conformance_job.pkl"
+    out = ctx.tmp_path / "conformance_out.npy"
+    with open(job, "wb") as f:
+        pickle.dump((ctx.name, ctx.options, ctx.threads, ctx.scenes.full, ctx.scenes.camera, SEED), f)
+    proc = subprocess.run(
+        [sys.executable, "-m", "specsynth.testing.conformance", str(job), str(out)],
+        capture_output=True, text=True, timeout=600,
+    )
+    _require(proc.returncode == 0, ctx.name, f"render in a fresh process failed:\n{proc.stderr[-4000:]}")
+    b = np.load(out)
+    _require(b.shape == a.shape, ctx.name, f"fresh-process render has shape {b.shape}, expected {a.shape}")
+    n = int((a != b).any(axis=-1).sum())
+    _require(n == 0, ctx.name, f"a fresh process gave {n} different pixel(s) for the same render")
+
+
+def check_seed_matters(ctx: ConformanceContext) -> None:
+    """Optional (not in CHECKS): the seed changes the image. The protocol does not demand it, but
+    for a sampling backend or one with random backgrounds an ignored seed is a bug."""
+    a = _rgb(ctx, ctx.render(seed=SEED))
+    b = _rgb(ctx, ctx.render(seed=SEED + 17))
+    _require(not np.array_equal(a, b), ctx.name, "different seeds gave identical images (is the seed used?)")
+
+
+def check_camera_moves(ctx: ConformanceContext) -> None:
+    a = _rgb(ctx, ctx.render(seed=SEED)).astype(np.int16)
+    b = _rgb(ctx, ctx.render(camera=ctx.scenes.camera_moved, seed=SEED)).astype(np.int16)
+    diff = float(np.abs(a - b).mean())
+    _require(diff > 2.0, ctx.name, f"moving the camera barely changed the image (mean |diff| {diff:.2f})")
+
+
+def check_silhouettes(ctx: ConformanceContext) -> None:
+    """Each object shows up at the pixel where K and the camera pose project its centre."""
+    s = ctx.scenes
+    cam = s.camera
+    full = _rgb(ctx, ctx.render(s.full, seed=SEED))
+    for label, centre, without in (("box", BOX_CENTRE, s.no_box), ("sphere", SPHERE_CENTRE, s.no_sphere)):
+        u, v, z = project(cam, centre)
+        _require(1 <= u <= WIDTH - 2 and 1 <= v <= HEIGHT - 2 and z > 0, ctx.name, f"test setup: {label} off screen")
+        other = _rgb(ctx, ctx.render(without, seed=SEED))
+        d = float(np.abs(_window(full, u, v) - _window(other, u, v)).mean())
+        _require(
+            d >= SILHOUETTE_MIN_DIFF, ctx.name,
+            f"the {label} does not appear where the camera projects its centre (pixel {u:.1f}, {v:.1f}): "
+            f"mean |diff| with and without it is {d:.1f} < {SILHOUETTE_MIN_DIFF} (check K, the pose convention "
+            "and the image's row order)",
+        )
+    if not ctx.backend_class.draws_scene:
+        # Objects-only backends: away from the objects, the image is exactly the object-free one.
+        empty = _rgb(ctx, ctx.render(s.no_objects, seed=SEED))
+        margin = 6
+        far = np.ones((HEIGHT, WIDTH), bool)
+        for centre, radius in ((BOX_CENTRE, BOX_SIZE * math.sqrt(3) / 2), (SPHERE_CENTRE, SPHERE_RADIUS)):
+            u, v, z = project(cam, centre)
+            r_px = cam.K_array[0, 0] * radius / (z - radius) + margin
+            yy, xx = np.mgrid[:HEIGHT, :WIDTH]
+            far &= (xx - u) ** 2 + (yy - v) ** 2 > r_px**2
+        same = float((full[far] == empty[far]).all(axis=-1).mean())
+        _require(
+            same >= 0.99, ctx.name,
+            f"an objects-only backend changed pixels far from the objects ({100 * (1 - same):.1f}% of them)",
+        )
+
+
+def check_reload(ctx: ConformanceContext) -> None:
+    """load() replaces the previous scene completely: nothing of it leaks into the next."""
+    s = ctx.scenes
+    ctx.close()  # a fresh instance, so the first render of no_box cannot inherit anything
+    first = _rgb(ctx, ctx.render(s.no_box, seed=SEED))
+    full = _rgb(ctx, ctx.render(s.full, seed=SEED))
+    again = _rgb(ctx, ctx.render(s.no_box, seed=SEED))
+    _require(not np.array_equal(first, full), ctx.name, "scenes with and without the box rendered identically")
+    n = int((first != again).any(axis=-1).sum())
+    _require(n == 0, ctx.name, f"after load(other scene), reloading a scene changed {n} pixel(s) (a leak?)")
+
+
+CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
+    "discovery": check_discovery,
+    "version": check_version,
+    "render_shape": check_render_shape,
+    "determinism": check_determinism,
+    "fresh_process_determinism": check_fresh_process_determinism,
+    "camera_moves": check_camera_moves,
+    "silhouettes": check_silhouettes,
+    "reload": check_reload,
+}
+
+
+def check_backend(name: str, options: Any = None, tmp_path: str | Path = ".", *, skip: tuple[str, ...] = (), threads: int = 1) -> None:
+    """Run every check against the backend ``name``; raises ConformanceError on the first failure."""
+    unknown = set(skip) - set(CHECKS)
+    if unknown:
+        raise ValueError(f"unknown conformance checks: {sorted(unknown)}")
+    ctx = ConformanceContext(name, options, tmp_path, threads=threads)
+    try:
+        for check_name, check in CHECKS.items():
+            if check_name not in skip:
+                check(ctx)
+    finally:
+        ctx.close()
+
+
+def _render_job(job: Path, out: Path) -> None:
+    """Entry of the fresh-process determinism check: render one pickled job, save the pixels."""
+    with open(job, "rb") as f:
+        name, options, threads, scene, camera, seed = pickle.load(f)
+    backend = load_backend(name)(options, threads=threads)
+    try:
+        backend.load(scene)
+        np.save(out, backend.render(camera, QUALITY, seed).rgb)
+    finally:
+        backend.close()
+
+
+if __name__ == "__main__":
+    _render_job(Path(sys.argv[1]), Path(sys.argv[2]))

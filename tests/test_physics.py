@@ -1,0 +1,276 @@
+"""Real pybullet runs of specsynth.physics.arrange on small scenes built from trimesh primitives."""
+
+from __future__ import annotations
+
+import hashlib
+import multiprocessing as mp
+import time
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import pytest
+import trimesh
+
+from specsynth import meshio
+from specsynth.assets import ObjectAsset
+from specsynth.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
+from specsynth.physics import ArrangeError, arrange
+from specsynth.scenes.types import SceneDesc, Stage
+from specsynth.spec import Arrangements, Physics
+
+TABLE_TOP = 0.75  # m
+
+
+# --------------------------------------------------------------------------- builders
+
+
+def _write(tm: trimesh.Trimesh, path: Path) -> tuple[str, str]:
+    mesh = meshio.MeshData(
+        vertices=np.asarray(tm.vertices, dtype=np.float32),
+        faces=np.asarray(tm.faces, dtype=np.int32),
+    )
+    meshio.write_mesh(path, mesh)
+    return str(path), hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def make_asset(tm: trimesh.Trimesh, tmp: Path, name: str, obj_id: int = 1) -> ObjectAsset:
+    path, key = _write(tm, tmp / f"{name}.ply")
+    lo, hi = tm.bounds
+    v = np.asarray(tm.vertices)
+    diameter = float(max(np.linalg.norm(v - x, axis=1).max() for x in v[:: max(1, len(v) // 200)]))
+    return ObjectAsset(
+        obj_id=obj_id,
+        name=name,
+        mesh_path=path,
+        mesh_key=key,
+        material=MaterialIR(),
+        diameter=diameter,
+        bbox_min=tuple(float(x) for x in lo),
+        extents=tuple(float(x) for x in hi - lo),
+        source=f"test:{name}",
+    )
+
+
+def make_table_scene(
+    tmp: Path, top=(1.0, 0.8), thickness=0.02, stage_half=(0.4, 0.3), stage_center=(0.0, 0.0), floor=True
+) -> tuple[SceneDesc, Stage]:
+    """A table top (box, `thickness` thick, upper face at TABLE_TOP) over an optional floor."""
+    meshes = []
+    top_box = trimesh.creation.box(extents=(top[0], top[1], thickness))
+    path, key = _write(top_box, tmp / "table.ply")
+    pose = np.eye(4)
+    pose[2, 3] = TABLE_TOP - thickness / 2
+    meshes.append(MeshInstance(name="table", mesh_path=path, mesh_key=key, pose=as_tuple(pose)))
+    if floor:
+        fl = trimesh.creation.box(extents=(6.0, 6.0, 0.1))
+        path, key = _write(fl, tmp / "floor.ply")
+        pose = np.eye(4)
+        pose[2, 3] = -0.05
+        meshes.append(MeshInstance(name="floor", mesh_path=path, mesh_key=key, pose=as_tuple(pose)))
+    cx, cy = stage_center
+    hx, hy = stage_half
+    stage = Stage(
+        name="table_top",
+        polygon=((cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)),
+        height=TABLE_TOP,
+    )
+    scene = SceneDesc(name="test_table", meshes=tuple(meshes), lights=(), world=WorldIR(), stages={stage.name: stage})
+    return scene, stage
+
+
+def small_objects(tmp: Path) -> list[ObjectAsset]:
+    box = trimesh.creation.box(extents=(0.08, 0.05, 0.04))
+    cyl = trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24)
+    # Off-centre model origin: the returned pose must still map model coordinates exactly.
+    off = trimesh.creation.box(extents=(0.06, 0.06, 0.05))
+    off.apply_translation((0.02, -0.01, 0.03))
+    return [make_asset(box, tmp, "box", 1), make_asset(cyl, tmp, "cyl", 2), make_asset(off, tmp, "offbox", 3)]
+
+
+def fast_arrangements(**phys) -> Arrangements:
+    return Arrangements(drop_height=(0.05, 0.3), physics=Physics(max_time=4.0, **phys))
+
+
+def world_vertices(asset: ObjectAsset, pose: np.ndarray) -> np.ndarray:
+    v = meshio.read_mesh(asset.mesh_path).vertices.astype(np.float64)
+    return v @ pose[:3, :3].T + pose[:3, 3]
+
+
+def max_pair_penetration(objects: list[ObjectAsset], placed) -> float:
+    """Deepest penetration between placed objects, measured in a fresh client from the poses alone."""
+    cid = p.connect(p.DIRECT)
+    try:
+        uids = []
+        for i, pose in placed:
+            hull = trimesh.convex.convex_hull(world_vertices(objects[i], pose))
+            s = p.createCollisionShape(p.GEOM_MESH, vertices=np.asarray(hull.vertices).tolist(), physicsClientId=cid)
+            u = p.createMultiBody(0.0, s, physicsClientId=cid)
+            # Bullet reports distance minus both margins; a tiny margin keeps the reading honest.
+            p.changeDynamics(u, -1, collisionMargin=1e-5, physicsClientId=cid)
+            uids.append(u)
+        worst = 0.0
+        for a in range(len(uids)):
+            for b in range(a + 1, len(uids)):
+                for pt in p.getClosestPoints(uids[a], uids[b], 0.01, physicsClientId=cid):
+                    worst = max(worst, -pt[8])
+        return worst
+    finally:
+        p.disconnect(physicsClientId=cid)
+
+
+def check_valid(result, objects, stage: Stage) -> None:
+    assert [i for i, _ in result.placed] == sorted(i for i, _ in result.placed)
+    for i, pose in result.placed:
+        assert pose.shape == (4, 4)
+        assert np.isfinite(pose).all()
+        R = pose[:3, :3]
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
+        v = world_vertices(objects[i], pose)
+        centre = v.mean(0)
+        assert stage.contains(pose[:2, 3]) or stage.contains(centre[:2])
+        assert v[:, 2].min() >= stage.height - 0.005
+    assert max_pair_penetration(objects, result.placed) <= 0.002
+
+
+# --------------------------------------------------------------------------- tests
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("physics")
+    scene, stage = make_table_scene(tmp)
+    return tmp, scene, stage, small_objects(tmp)
+
+
+def test_objects_rest_on_stage_without_penetration(table):
+    tmp, scene, stage, assets = table
+    objects = assets * 2  # two instances per model
+    res = arrange(scene, stage, objects, fast_arrangements(), "random", np.random.default_rng(1))
+    assert res.removed + len(res.placed) == len(objects)
+    assert res.sim_seconds > 0
+    check_valid(res, objects, stage)
+    # Resting objects touch something: the lowest point of an object lying on the table is on it
+    # (within margins), not hovering.
+    lows = [world_vertices(objects[i], T)[:, 2].min() for i, T in res.placed]
+    assert min(lows) == pytest.approx(TABLE_TOP, abs=0.002)
+
+
+def test_model_frame_pose_is_exact(table):
+    """Transforming the mesh by the returned pose puts its lowest point on the table top."""
+    tmp, scene, stage, assets = table
+    offbox = assets[2]
+    res = arrange(scene, stage, [offbox], fast_arrangements(), "canonical", np.random.default_rng(3))
+    (i, pose), = res.placed
+    v = world_vertices(offbox, pose)
+    assert v[:, 2].min() == pytest.approx(TABLE_TOP, abs=0.0015)
+    assert v[:, 2].max() == pytest.approx(TABLE_TOP + 0.05, abs=0.0015)
+
+
+def test_canonical_boxes_stay_upright(table):
+    tmp, scene, stage, assets = table
+    objects = [assets[0], assets[2], assets[0]]
+    res = arrange(scene, stage, objects, fast_arrangements(), "canonical", np.random.default_rng(5))
+    assert len(res.placed) == 3
+    for _, pose in res.placed:
+        # Model Z stays world Z up to yaw: the third column of R is (0, 0, 1).
+        assert pose[2, 2] > np.cos(np.radians(2.0))
+    check_valid(res, objects, stage)
+
+
+def _run_in_child(args):
+    scene, stage, objects, arr, orientation, seed = args
+    res = arrange(scene, stage, objects, arr, orientation, np.random.default_rng(seed))
+    return [(i, T.tobytes()) for i, T in res.placed], res.removed, res.redropped
+
+
+def test_deterministic_across_processes(table):
+    tmp, scene, stage, assets = table
+    args = (scene, stage, assets * 2, fast_arrangements(), "random", 11)
+    here = _run_in_child(args)
+    again = _run_in_child(args)
+    with mp.get_context("spawn").Pool(1) as pool:
+        there = pool.apply(_run_in_child, (args,))
+    assert here == again == there
+    other = _run_in_child(args[:-1] + (12,))
+    assert other[0] != here[0]
+
+
+def test_thin_block_does_not_tunnel_through_thin_table(tmp_path):
+    # A big table and stage, so that a block that is gone can only have gone *through* the top.
+    scene, stage = make_table_scene(tmp_path, top=(3.0, 3.0), stage_half=(1.3, 1.3), thickness=0.02, floor=False)
+    jenga = make_asset(trimesh.creation.box(extents=(0.075, 0.025, 0.015)), tmp_path, "jenga")
+    arr = Arrangements(drop_height=(0.5, 0.5), physics=Physics(max_time=3.0, max_redrops=0, on_invalid="remove"))
+    for seed in range(4):
+        # Random orientations: edge- and corner-first impacts are the ones that tunnel.
+        res = arrange(scene, stage, [jenga] * 3, arr, "random", np.random.default_rng(seed))
+        assert res.invalid_reasons.get("fell_through", 0) == 0, f"seed {seed}: {res.invalid_reasons}"
+        for i, pose in res.placed:
+            assert world_vertices(jenga, pose)[:, 2].min() >= TABLE_TOP - 0.003
+
+
+def test_too_small_stage_removes_or_raises_never_hangs(tmp_path):
+    # A 2 cm stage on a big table: a flat box can rest over it, balls dropped onto the box roll
+    # off, and so do their re-drops.
+    scene, stage = make_table_scene(tmp_path, stage_half=(0.01, 0.01))
+    box = make_asset(trimesh.creation.box(extents=(0.1, 0.1, 0.05)), tmp_path, "box")
+    ball = make_asset(trimesh.creation.icosphere(subdivisions=2, radius=0.04), tmp_path, "ball")
+    objects = [box, ball, ball, ball]
+    arr = Arrangements(drop_height=(0.02, 0.1), physics=Physics(max_time=2.0, max_redrops=1))
+    t0 = time.monotonic()
+    try:
+        res = arrange(scene, stage, objects, arr, "canonical", np.random.default_rng(0))
+    except ArrangeError as e:
+        assert "table_top" in str(e)
+    else:
+        assert res.removed >= 1 and res.redropped >= 1
+        assert res.removed + len(res.placed) == len(objects)
+        assert sum(res.invalid_reasons.values()) == res.removed + res.redropped
+        check_valid(res, objects, stage)
+    assert time.monotonic() - t0 < 30
+
+
+def test_unsupported_stage_raises_clear_error(tmp_path):
+    # The stage lies beside the table over the void: everything falls, nothing can be kept.
+    scene, stage = make_table_scene(tmp_path, stage_center=(2.0, 0.0), stage_half=(0.1, 0.1), floor=False)
+    box = make_asset(trimesh.creation.box(extents=(0.05, 0.05, 0.05)), tmp_path, "box")
+    arr = Arrangements(drop_height=(0.05, 0.1), physics=Physics(max_time=2.0, max_redrops=2))
+    with pytest.raises(ValueError, match="table_top"):
+        arrange(scene, stage, [box, box], arr, "canonical", np.random.default_rng(0))
+
+
+def test_remove_mode_counts_without_redrops(tmp_path):
+    scene, stage = make_table_scene(tmp_path, stage_half=(0.01, 0.01))
+    ball = make_asset(trimesh.creation.icosphere(subdivisions=2, radius=0.04), tmp_path, "ball")
+    arr = Arrangements(drop_height=(0.05, 0.2), physics=Physics(max_time=2.0, on_invalid="remove"))
+    try:
+        res = arrange(scene, stage, [ball] * 3, arr, "random", np.random.default_rng(4))
+    except ArrangeError:
+        return
+    assert res.redropped == 0
+    assert res.removed + len(res.placed) == 3
+
+
+def test_empty_object_list(table):
+    tmp, scene, stage, _ = table
+    res = arrange(scene, stage, [], fast_arrangements(), "canonical", np.random.default_rng(0))
+    assert res.placed == [] and res.removed == 0 and res.settled
+
+
+def test_decomposition_is_cached_once_per_mesh(tmp_path, monkeypatch):
+    scene, stage = make_table_scene(tmp_path)
+    ring = make_asset(trimesh.creation.annulus(r_min=0.02, r_max=0.035, height=0.02, sections=16), tmp_path, "ring")
+    cache = tmp_path / "collision"
+    arr = fast_arrangements(collision="decomposition")
+    res1 = arrange(scene, stage, [ring], arr, "canonical", np.random.default_rng(2), collision_cache=cache)
+    files = list(cache.glob("*.npz"))
+    assert [f.name for f in files] == [f"{ring.mesh_key}.npz"]
+    # A second run must not decompose again, and gives the same poses from the cached parts.
+    import coacd
+
+    monkeypatch.setattr(coacd, "run_coacd", lambda *a, **k: pytest.fail("decomposition recomputed"))
+    res2 = arrange(scene, stage, [ring], arr, "canonical", np.random.default_rng(2), collision_cache=cache)
+    assert [T.tobytes() for _, T in res1.placed] == [T.tobytes() for _, T in res2.placed]
+    check_valid(res2, [ring], stage)
+    # Canonical flat ring lands flat.
+    assert res2.placed[0][1][2, 2] > np.cos(np.radians(2.0))
