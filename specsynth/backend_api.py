@@ -58,6 +58,15 @@ class RenderBackend(Protocol):
 
 
 def _load(group: str, name: str):
+    if ":" in name:
+        # "package.module:Class": a plugin used without installing it (tests, experiments).
+        import importlib
+
+        mod, _, attr = name.partition(":")
+        try:
+            return getattr(importlib.import_module(mod), attr)
+        except (ImportError, AttributeError) as e:
+            raise PluginNotFound(f"cannot load {name!r}: {e}") from e
     eps = metadata.entry_points(group=group)
     matches = [ep for ep in eps if ep.name == name]
     if not matches:

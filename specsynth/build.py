@@ -125,28 +125,49 @@ def _progress(console):
     )
 
 
+def _is_crash(e: BaseException) -> bool:
+    """A worker process died (segfault, OOM kill): every job in flight on the pool failed with it."""
+    return type(e).__name__ in ("BrokenProcessPool", "KilledWorker")
+
+
 def _run(ex, calls: list[tuple[Callable, tuple, Any]], on_done: Callable[[Any, Any], None],
-         on_error: Callable[[Any, BaseException], None], *, window: int, retries: int) -> None:
+         on_error: Callable[[Any, BaseException], None], *, window: int, retries: int,
+         split: Callable[[Callable, tuple], list[tuple[Callable, tuple, Any]] | None] = lambda fn, args: None) -> None:
     """Submit calls with at most ``window`` in flight; retry a failed call up to ``retries`` times.
 
     A retry is safe because a job counts only once its record is in the store: a re-submitted
-    group re-runs exactly the jobs that have no finished result.
+    group re-runs exactly the jobs that have no finished result. When a worker crashes, every
+    call in flight fails with it; those are re-run one at a time so that only the call that
+    really crashes uses up its retries. A group that still fails is split into single jobs
+    (``split``) so one bad job does not take its whole arrangement down.
     """
     queue = [(fn, args, meta, 0) for fn, args, meta in reversed(calls)]
-    inflight: list[tuple[Future, tuple]] = []
-    while queue or inflight:
-        while queue and len(inflight) < window:
-            item = queue.pop()
-            inflight.append((ex.submit(item[0], *item[1]), item))
-        fut, item = inflight.pop(0)
+    suspects: list[tuple] = []
+    inflight: list[tuple[Future, tuple, bool]] = []
+    while queue or suspects or inflight:
+        if suspects:
+            if not inflight:
+                item = suspects.pop(0)
+                inflight.append((ex.submit(item[0], *item[1]), item, True))
+        else:
+            while queue and len(inflight) < window:
+                item = queue.pop()
+                inflight.append((ex.submit(item[0], *item[1]), item, False))
+        fut, item, isolated = inflight.pop(0)
         try:
             res = fut.result()
         except Exception as e:  # one failed job must not stop the build
             fn, args, meta, tries = item
-            if tries < retries:
-                queue.append((fn, args, meta, tries + 1))
+            if _is_crash(e) and not isolated:
+                suspects.append(item)
+            elif tries < retries:
+                (suspects if _is_crash(e) else queue).append((fn, args, meta, tries + 1))
             else:
-                on_error(meta, e)
+                parts = split(fn, args)
+                if parts:
+                    queue.extend((f, a, m, 0) for f, a, m in reversed(parts))
+                else:
+                    on_error(meta, e)
             continue
         on_done(item[2], res)
 
@@ -167,8 +188,14 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         window = 2 * max(1, getattr(ex, "workers", jobs))
 
-        def run(calls, on_done, on_error):
-            _run(ex, calls, on_done, on_error, window=window, retries=retries)
+        def run(calls, on_done, on_error, split=lambda fn, args: None):
+            _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split)
+
+        def split_group(fn, args):
+            key, group = args
+            if len(group) < 2:
+                return None
+            return [(fn, (key, [j]), (_group_id(j), 1)) for j in group]
 
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
 
@@ -219,7 +246,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sv.failed += meta[1]
                     summary.failures.append({"stage": "view", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
 
-                run(calls, views_done, views_failed)
+                run(calls, views_done, views_failed, split_group)
                 sv.seconds = time.perf_counter() - t0
 
                 if until == "view":
@@ -249,7 +276,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     if todo_r:
                         pending.append((a.key, todo_r))
                 task = prog.add_task("render", total=sr.total, completed=sr.cached)
-                calls = [(task_renders, (key, pairs), (pairs[0][1].id.rsplit("/", 2)[0], len(pairs))) for key, pairs in pending]
+                calls = [(task_renders, (key, pairs), (_group_id(pairs[0]), len(pairs))) for key, pairs in pending]
 
                 def renders_done(meta, res):
                     sr.ran += len(res)
@@ -259,7 +286,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sr.failed += meta[1]
                     summary.failures.append({"stage": "render", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
 
-                run(calls, renders_done, renders_failed)
+                run(calls, renders_done, renders_failed, split_group)
                 sr.seconds = time.perf_counter() - t0
         finally:
             ex.shutdown()
@@ -287,6 +314,12 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         write_json(out / "failures.json", summary.failures)
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary
+
+
+def _group_id(item) -> str:
+    """The arrangement of a view job or a (view, render) pair, plus the camera when alone."""
+    job = item[1] if isinstance(item, tuple) else item
+    return job.id.removesuffix("/render")
 
 
 def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:

@@ -1,0 +1,112 @@
+"""Scale-out and crash safety: Dask LocalCluster, SIGKILL + resume, a crashing renderer, the lock."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from specsynth.build import BuildLocked, build, output_lock
+from specsynth.compiler import compile_spec
+from specsynth.yamlio import load_spec
+from test_build import tree_digest
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = """\
+name: scale
+seed: 11
+intrinsics: {width: 128, height: 96, fx: 115.0, fy: 115.0, cx: 63.5, cy: 47.5}
+objects:
+  builtin: [duck, mug, lego, jenga]
+scenes:
+  - name: room2
+arrangements:
+  count: 4
+cameras:
+  per_arrangement: 3
+  distance: [0.4, 0.8]
+backend:
+  name: photo
+outputs:
+  image_format: png
+"""
+
+
+@pytest.fixture(scope="module")
+def spec_file(tmp_path_factory) -> Path:
+    f = tmp_path_factory.mktemp("spec") / "scale.yaml"
+    f.write_text(SPEC)
+    return f
+
+
+@pytest.fixture(scope="module")
+def reference(spec_file, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ref") / "out"
+    s = build(compile_spec(load_spec(spec_file)), out, jobs=1)
+    assert not s.failures and s.images > 0
+    return out
+
+
+def test_dask_local_cluster_gives_the_same_bytes(spec_file, reference, tmp_path):
+    pytest.importorskip("distributed")
+    s = build(compile_spec(load_spec(spec_file)), tmp_path / "dask", executor="dask", jobs=2)
+    assert not s.failures, s.failures
+    assert tree_digest(tmp_path / "dask") == tree_digest(reference)
+
+
+def _store_has(out: Path, stage: str) -> bool:
+    d = out / ".specsynth" / "store" / stage
+    return d.is_dir() and any(d.rglob("record.json"))
+
+
+@pytest.mark.parametrize("kill_after", ["arrange", "render"])
+def test_sigkill_then_resume_is_byte_identical(spec_file, reference, tmp_path, kill_after):
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "specsynth.cli", "build", str(spec_file), "--out", str(out), "--jobs", "2", "--quiet"],
+        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None and not _store_has(out, kill_after):
+        time.sleep(0.05)
+    if proc.poll() is not None:
+        pytest.skip("the build finished before it could be killed")
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    # Nothing half-written is visible: no temp files outside the store's private tmp folder.
+    assert not [p for p in out.rglob("*.tmp") if ".specsynth" not in p.parts]
+    s = build(compile_spec(load_spec(spec_file)), out, jobs=2)
+    assert not s.failures, s.failures
+    assert tree_digest(out) == tree_digest(reference)
+
+
+def test_crashing_renderer_is_retried_then_reported(spec_file, tmp_path):
+    g0 = compile_spec(load_spec(spec_file, ["backend.name=crashy_backend:CrashyBackend"]))
+    victim = g0.render_job(1, 1)
+    overrides = ["backend.name=crashy_backend:CrashyBackend", f"backend.options={{crash_seed: {victim.seed}}}"]
+    g = compile_spec(load_spec(spec_file, overrides))
+    s = build(g, tmp_path / "crash", jobs=2, retries=1)
+    failed = [f for f in s.failures if f["stage"] == "render"]
+    assert len(failed) == 1 and failed[0]["job"] == "arr=000001/cam=001", s.failures
+    assert "BrokenProcessPool" in failed[0]["error"]
+    assert s.stages["render"].failed == 1
+    assert s.images == s.views_accepted - 1  # the rest of the build completed
+    assert json.loads((tmp_path / "crash" / "failures.json").read_text()) == s.failures
+
+
+def test_second_build_into_same_folder_is_refused(spec_file, tmp_path):
+    out = tmp_path / "locked"
+    with output_lock(out):
+        with pytest.raises(BuildLocked):
+            with output_lock(out):
+                pass
+        r = subprocess.run([sys.executable, "-m", "specsynth.cli", "build", str(spec_file), "--out", str(out)],
+                           capture_output=True, text=True)
+        assert r.returncode == 2
+        assert "another build" in r.stderr and "Traceback" not in r.stderr
