@@ -32,7 +32,8 @@ from typing import Literal
 
 import numpy as np
 
-from specsynth.conventions import cam_to_world, model_to_camera, opencv_to_opengl_c2w, opengl_projection
+from specsynth import glutil
+from specsynth.conventions import cam_to_world, model_to_camera, opencv_to_opengl_c2w
 from specsynth.ir import CameraIR, MeshInstance, RenderScene
 from specsynth.meshio import read_mesh
 from specsynth.records import InstanceGT
@@ -152,20 +153,6 @@ def _hull_points(vertices: np.ndarray) -> np.ndarray:
         return v
 
 
-def _make_k_camera(pyrender, K: np.ndarray, near: float, far: float):
-    """A pyrender camera whose projection is exactly ``K`` (pixel centres at +0.5)."""
-
-    class _KCamera(pyrender.Camera):
-        def __init__(self):
-            super().__init__(znear=near, zfar=far)
-            self.K = np.asarray(K, dtype=np.float64)
-
-        def get_projection_matrix(self, width=None, height=None):
-            return opengl_projection(self.K, width, height, self.znear, self.zfar)
-
-    return _KCamera()
-
-
 class _CachedMesh:
     def __init__(self, mesh, keeper, vertices: np.ndarray):
         self.mesh = mesh  # pyrender.Mesh, shared by every node of this mesh_key
@@ -184,7 +171,7 @@ class Annotator:
     """Annotation engine for one image size; load a :class:`RenderScene` once per arrangement."""
 
     def __init__(self, width: int, height: int, max_cached_meshes: int = 256):
-        import pyrender
+        pyrender = glutil.pyrender
 
         self.width, self.height = int(width), int(height)
         self._pr = pyrender
@@ -193,7 +180,7 @@ class Annotator:
         self._flags = F.DEPTH_ONLY | F.SEG | F.SKIP_CULL_FACES
         self._renderer = pyrender.OffscreenRenderer(self.width, self.height)
         self._pscene = pyrender.Scene(bg_color=(0, 0, 0, 0), ambient_light=(0, 0, 0))
-        self._camera = _make_k_camera(pyrender, np.eye(3), 0.01, 100.0)
+        self._camera = glutil.KCamera(np.eye(3), 0.01, 100.0)
         self._camera_node = self._pscene.add(self._camera)
         self._cache: OrderedDict[str, _CachedMesh] = OrderedDict()
         self._max_cached = max(1, int(max_cached_meshes))
@@ -374,7 +361,9 @@ class Annotator:
 
     def close(self) -> None:
         if self._renderer is not None:
-            self._renderer.delete()
+            # Not OffscreenRenderer.delete(): it terminates the EGL display every other renderer
+            # in this process (a backend's) shares.
+            glutil.release_renderer(self._renderer)
             self._renderer = None
 
     def __enter__(self) -> "Annotator":

@@ -23,20 +23,9 @@ from PIL import Image  # noqa: E402
 from pyrender.renderer import Renderer  # noqa: E402
 
 from specsynth.colour import srgb_to_linear  # noqa: E402
-from specsynth.conventions import opengl_projection  # noqa: E402
+from specsynth.glutil import KCamera, discard_renderer, release_renderer  # noqa: E402,F401  (re-exported)
 from specsynth.ir import MaterialIR  # noqa: E402
 from specsynth.meshio import MeshData, read_mesh  # noqa: E402
-
-
-class KCamera(pyrender.Camera):
-    """Pinhole camera given by an OpenCV intrinsic matrix (skew and off-centre principal point kept)."""
-
-    def __init__(self, K: np.ndarray, znear: float, zfar: float):
-        super().__init__(znear=znear, zfar=zfar)
-        self.K = np.asarray(K, dtype=np.float64)
-
-    def get_projection_matrix(self, width=None, height=None):
-        return opengl_projection(self.K, width, height, self.znear, self.zfar)
 
 
 class SampledRenderer(Renderer):
@@ -133,45 +122,3 @@ def build_mesh(path: str, material: MaterialIR, textures: dict[str, pyrender.Tex
         mode=pyrender.constants.GLTF.TRIANGLES,
     )
     return pyrender.Mesh(primitives=[prim])
-
-
-def release_renderer(renderer: pyrender.OffscreenRenderer) -> None:
-    """Free a renderer's GL objects and context *without* ``eglTerminate``.
-
-    pyrender's ``OffscreenRenderer.delete`` (also run by its ``__del__``) terminates the EGL
-    display, and every EGL context in the process shares that display: deleting one renderer
-    breaks every other one alive (the annotation engine's, another backend instance's) with
-    ``EGL_BAD_DISPLAY`` on their next ``eglMakeCurrent``.
-    """
-    platform = getattr(renderer, "_platform", None)
-    if platform is None:
-        return
-    try:
-        platform.make_current()
-        renderer._renderer.delete()
-    except Exception:  # noqa: BLE001 - the context may already be dead; nothing left to free then
-        pass
-    finally:
-        display = getattr(platform, "_egl_display", None)
-        if display is not None:
-            from OpenGL.EGL import EGL_NO_CONTEXT, EGL_NO_SURFACE, eglDestroyContext, eglMakeCurrent
-
-            try:
-                eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
-                if platform._egl_context is not None:
-                    eglDestroyContext(display, platform._egl_context)
-            except Exception:  # noqa: BLE001 - display terminated by someone else: context gone
-                pass
-            platform._egl_context = None
-            platform._egl_display = None
-        else:
-            platform.delete_context()
-        # Disarm OffscreenRenderer.__del__, which would call delete() and terminate the display.
-        renderer._renderer = None
-        renderer._platform = None
-
-
-def discard_renderer(renderer: pyrender.OffscreenRenderer) -> None:
-    """Forget a renderer whose context is already gone, making no GL call."""
-    renderer._renderer = None
-    renderer._platform = None
