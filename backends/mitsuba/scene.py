@@ -1,0 +1,199 @@
+"""RenderScene -> the dict ``mi.load_dict`` takes (meshes built from numpy arrays).
+
+Everything here receives the ``mitsuba`` module as an argument: the variant is chosen by the
+backend instance, and importing Mitsuba at module level would set it for the whole process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from specsynth.colour import srgb_to_linear
+from specsynth.ir import LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR
+from specsynth.meshio import MeshData
+
+from . import mapping
+from .textures import PRODUCT
+
+VERTEX_COLOR = "vertex_color"  # the mesh attribute the base colour is read from
+
+
+def _matrix(mi, T: np.ndarray):
+    return mi.ScalarTransform4f(np.asarray(T, dtype=np.float64).tolist())
+
+
+def _texture_base(mi, material: MaterialIR):
+    """Base-colour texture premultiplied by base_color, in linear floats.
+
+    Mitsuba has no 'multiply' texture, so the constant factor is baked into the pixels once per
+    arrangement (cheap next to the render), which keeps the shading exactly base * texture.
+    """
+    bmp = mi.Bitmap(str(material.texture))
+    arr = np.asarray(bmp, dtype=np.float32)
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    arr = arr[..., :3] if arr.shape[-1] >= 3 else np.repeat(arr[..., :1], 3, axis=-1)
+    if bmp.component_format() in (mi.Struct.Type.UInt8, mi.Struct.Type.UInt16):
+        arr = arr / (255.0 if bmp.component_format() == mi.Struct.Type.UInt8 else 65535.0)
+        arr = srgb_to_linear(arr)  # 8/16-bit colour images are sRGB-encoded by convention
+    arr = np.ascontiguousarray(arr * np.asarray(material.base_color, dtype=np.float32))
+    return {"type": "bitmap", "bitmap": mi.Bitmap(arr), "raw": True}
+
+
+def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool) -> dict:
+    """Base colour = base_color x vertex colour x texture, as in the Cycles backend; base_color is
+    baked into whichever of the other two is present."""
+    if material.texture is not None and vertex_colored:
+        tex = _texture_base(mi, dataclasses.replace(material, base_color=(1.0, 1.0, 1.0)))
+        base = {"type": PRODUCT, "a": {"type": "mesh_attribute", "name": VERTEX_COLOR}, "b": tex}
+    elif material.texture is not None:
+        base = _texture_base(mi, material)
+    elif vertex_colored:
+        base = {"type": "mesh_attribute", "name": VERTEX_COLOR}
+    else:
+        base = {"type": "rgb", "value": [float(c) for c in material.base_color]}
+    if material.specular == 0 and material.metallic == 0 and material.transmission == 0:
+        # Mitsuba's principled diffuse is Burley's (retro-reflection, not energy-conserving: a
+        # 0.5 albedo renders 0.49-0.52 by roughness); Blender 4+'s Principled diffuse is
+        # Lambertian, and so is this.
+        return {"type": "twosided", "material": {"type": "diffuse", "reflectance": base}}
+    bsdf = {
+        "type": "principled",
+        "base_color": base,
+        "roughness": float(material.roughness),
+        "metallic": float(material.metallic),
+        "specular": float(material.specular),
+    }
+    if material.transmission > 0:
+        # twosided forbids transmission; a transmissive surface must be closed and outward-facing.
+        bsdf["spec_trans"] = float(material.transmission)
+        return bsdf
+    # Mitsuba BSDFs are black from behind; scanned meshes and thin scene geometry have
+    # inconsistent winding, and Cycles shades both sides.
+    return {"type": "twosided", "material": bsdf}
+
+
+def build_mesh(mi, inst: MeshInstance, data: MeshData):
+    T = inst.matrix
+    R, t = T[:3, :3], T[:3, 3]
+    v = data.vertices.astype(np.float64) @ R.T + t
+    n = None
+    if data.normals is not None:
+        n = data.normals.astype(np.float64) @ np.linalg.inv(R)  # (R^-T n) as rows
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
+    m = inst.material
+    if m.texture is not None and data.uv is None:
+        raise ValueError(f"mitsuba: material of {inst.name!r} has a texture but its mesh has no UVs")
+    vertex_colored = m.use_vertex_colors and data.colors is not None
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf_dict(mi, m, vertex_colored))
+    if any(c > 0 for c in m.emission):
+        props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "rgb", "value": list(m.emission)}})
+    mesh = mi.Mesh(
+        inst.name,
+        vertex_count=len(v),
+        face_count=len(data.faces),
+        props=props,
+        has_vertex_normals=n is not None,
+        has_vertex_texcoords=data.uv is not None,
+    )
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(v.astype(np.float32).ravel())
+    params["faces"] = mi.UInt32(data.faces.astype(np.uint32).ravel())
+    if n is not None:
+        params["vertex_normals"] = mi.Float(n.astype(np.float32).ravel())
+    if data.uv is not None:
+        uv = data.uv.astype(np.float32).copy()
+        uv[:, 1] = 1.0 - uv[:, 1]  # specsynth UVs are OpenGL (v up); Mitsuba's image rows go down
+        params["vertex_texcoords"] = mi.Float(uv.ravel())
+    params.update()
+    if vertex_colored:
+        rgb = srgb_to_linear(data.colors[:, :3].astype(np.float32) / 255.0)
+        rgb = rgb * np.asarray(m.base_color, dtype=np.float32)  # (the texture then carries none)
+        mesh.add_attribute(VERTEX_COLOR, 3, mi.Float(rgb.astype(np.float32).ravel()))
+    return mesh
+
+
+def light_dict(light: LightIR) -> dict:
+    T = light.matrix
+    if light.kind == "area":
+        return {
+            "type": "rectangle",
+            "to_world": mapping.rectangle_to_world(T, light.size),
+            # Not the default 0.5 diffuse: a Blender area light reflects nothing; Mitsuba's emitter
+            # still occludes (documented difference).
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": mapping.area_radiance(light.power, light.size, light.color)}},
+        }
+    if light.kind == "point":
+        return {
+            "type": "point",
+            "position": [float(x) for x in T[:3, 3]],
+            "intensity": {"type": "rgb", "value": mapping.point_intensity(light.power, light.color)},
+        }
+    if light.kind == "spot":
+        cutoff, beam = mapping.spot_angles(light.spot_angle, light.spot_blend)
+        return {
+            "type": "spot",
+            "to_world": mapping.emitter_to_world(T),
+            "intensity": {"type": "rgb", "value": mapping.point_intensity(light.power, light.color)},
+            "cutoff_angle": cutoff,
+            "beam_width": beam,
+        }
+    if light.kind == "sun":
+        d = -T[:3, 2]
+        return {
+            "type": "directional",
+            "direction": [float(x) for x in d / np.linalg.norm(d)],
+            "irradiance": {"type": "rgb", "value": [float(c) * light.power for c in light.color]},
+        }
+    raise ValueError(f"unknown light kind {light.kind!r}")
+
+
+def world_dict(world: WorldIR) -> dict | None:
+    if world.kind == "color":
+        rad = [float(c) * world.strength for c in world.color]
+        if not any(rad):
+            return None
+        return {"type": "constant", "radiance": {"type": "rgb", "value": rad}}
+    if world.kind == "envmap":
+        if not world.envmap or not Path(world.envmap).is_file():
+            raise FileNotFoundError(f"environment map not found: {world.envmap!r}")
+        return {
+            "type": "envmap",
+            "filename": str(world.envmap),
+            "scale": float(world.strength),
+            "to_world": mapping.envmap_to_world(world.rotation_z),
+        }
+    if world.kind == "sky":
+        # Hosek-Wilkie sun + sky in physical units (Cycles uses Nishita: brightness differs).
+        return {
+            "type": "sunsky",
+            "sun_direction": mapping.sun_direction(world.sun_elevation, world.sun_azimuth),
+            "turbidity": float(min(max(world.turbidity, 1.0), 10.0)),
+            "sky_scale": float(world.strength),
+            "sun_scale": float(world.strength),
+        }
+    raise ValueError(f"unknown world kind {world.kind!r}")
+
+
+def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData]) -> dict:
+    """``meshes`` maps mesh_key -> arrays (the backend's cache)."""
+    d: dict = {"type": "scene"}
+    for i, inst in enumerate(scene.meshes):
+        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key])
+    for i, light in enumerate(scene.lights):
+        ld = light_dict(light)
+        for k in ("to_world",):
+            if k in ld:
+                ld[k] = _matrix(mi, ld[k])
+        d[f"light_{i:03d}"] = ld
+    w = world_dict(scene.world)
+    if w is not None:
+        if "to_world" in w:
+            w["to_world"] = _matrix(mi, w["to_world"])
+        d["world"] = w
+    return d

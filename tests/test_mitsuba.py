@@ -1,0 +1,322 @@
+"""Mitsuba backend: the mapping (no renderer needed) and small renders (64x48 or less)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.meshio import MeshData, write_mesh
+from specsynth.spec import PAPER_PRESETS, QualityPreset
+
+from backends.mitsuba import mapping
+
+# ----------------------------------------------------------------------------- pure mapping
+
+
+@pytest.mark.parametrize(("level", "spp", "depth"), [("low", 1, 4), ("medium", 36, 5), ("high", 225, 6)])
+def test_quality_mapping(level, spp, depth):
+    st = mapping.integrator_settings(PAPER_PRESETS[level])
+    assert (st.spp, st.max_depth, st.rr_depth) == (spp, depth, depth)
+
+
+def test_samples_override_and_sampler_rounding():
+    assert mapping.integrator_settings(PAPER_PRESETS["high"], samples=7).spp == 7
+    assert [mapping.round_spp(n, "ldsampler") for n in (1, 4, 9, 36, 225)] == [4, 4, 16, 64, 256]
+    assert [mapping.round_spp(n, "stratified") for n in (1, 3, 9, 36, 37)] == [1, 4, 9, 36, 49]
+    assert mapping.round_spp(37, "independent") == 37
+
+
+def test_principal_point_offsets_centre_is_zero():
+    W, H = 64, 48
+    K = np.array([[50.0, 0, (W - 1) / 2], [0, 50.0, (H - 1) / 2], [0, 0, 1]])
+    s = mapping.sensor_settings(K, W, H)
+    assert abs(s.ppo_x) < 1e-12 and abs(s.ppo_y) < 1e-12
+    assert s.x_fov == pytest.approx(math.degrees(2 * math.atan(W / 100.0)))
+    assert s.fy_error_px == 0.0
+
+
+def test_seed_folding_uses_high_bits():
+    assert mapping.fold_seed(5) != mapping.fold_seed(5 + (1 << 40))
+    assert 0 <= mapping.fold_seed(2**63 - 1) < 2**32
+
+
+def test_light_units():
+    assert mapping.area_radiance(math.pi, (1.0, 1.0), (1, 1, 1)) == pytest.approx([1.0] * 3)
+    assert mapping.point_intensity(4 * math.pi, (1, 0.5, 0)) == pytest.approx([1.0, 0.5, 0.0])
+    # the envmap basis is a rotation (a mirror would flip the sky's handedness)
+    assert np.linalg.det(mapping.envmap_to_world(30.0)[:3, :3]) == pytest.approx(1.0)
+
+
+# ----------------------------------------------------------------------------- renders
+
+mi = pytest.importorskip("mitsuba")
+
+
+@pytest.fixture(scope="module")
+def backend():
+    from backends.mitsuba import MitsubaBackend
+
+    b = MitsubaBackend({"variant": "auto"}, threads=2)
+    yield b
+    b.close()
+
+
+def _write(tmp, name, mesh: MeshData) -> str:
+    p = tmp / f"{name}.ply"
+    write_mesh(p, mesh)
+    return str(p)
+
+
+def _sphere(tmp, radius=1.0, subdiv=4) -> str:
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=subdiv, radius=radius)
+    return _write(
+        tmp,
+        f"sphere_{radius}_{subdiv}",
+        MeshData(
+            vertices=s.vertices.astype(np.float32),
+            faces=s.faces.astype(np.int32),
+            normals=s.vertex_normals.astype(np.float32),
+        ),
+    )
+
+
+def _quad(tmp, colors=None, uv=False) -> str:
+    """Unit square in the XY plane (z = 0), normal +Z, UV (0,0) at (-0.5,-0.5)."""
+    v = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]], np.float32)
+    return _write(
+        tmp,
+        f"quad_{colors is not None}_{uv}",
+        MeshData(
+            vertices=v,
+            faces=np.array([[0, 1, 2], [0, 2, 3]], np.int32),
+            normals=np.tile(np.array([[0, 0, 1]], np.float32), (4, 1)),
+            uv=(v[:, :2] + 0.5) if uv else None,
+            colors=colors,
+        ),
+    )
+
+
+def _pose(t=(0.0, 0.0, 0.0)) -> tuple:
+    T = np.eye(4)
+    T[:3, 3] = t
+    return as_tuple(T)
+
+
+def _look_at(eye, target, up=(0, 0, 1)):
+    """OpenCV world-to-camera (x right, y down, z forward)."""
+    eye, target, up = (np.asarray(a, float) for a in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ eye
+
+
+def _camera(eye, target, K=None, W=64, H=48) -> CameraIR:
+    R, t = _look_at(eye, target)
+    if K is None:
+        K = np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])
+    return CameraIR(K=as_tuple(K), width=W, height=H, R_w2c=as_tuple(R), t_w2c=as_tuple(t))
+
+
+def _spp(n: int) -> QualityPreset:
+    return QualityPreset(aa=n, diffuse_rays=1, specular_rays=1, diffuse_depth=1, specular_depth=1, max_depth=2)
+
+
+DIFFUSE = dict(specular=0.0, metallic=0.0, roughness=1.0)
+
+
+def test_variant_is_reported(backend):
+    assert backend.variant in ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
+    assert backend.variant in backend.version()
+
+
+def test_white_furnace(backend, tmp_path):
+    """Convex Lambertian sphere, albedo 0.5, uniform radiance-1 world: every sphere pixel is 0.5."""
+    mesh = MeshInstance("ball", _sphere(tmp_path), "sphere", _pose(), MaterialIR(base_color=(0.5,) * 3, **DIFFUSE))
+    backend.load(RenderScene(meshes=(mesh,), world=WorldIR(kind="color", color=(1.0, 1.0, 1.0))))
+    K = np.array([[40.0, 0, 15.5], [0, 40.0, 15.5], [0, 0, 1]])
+    r = backend.render(_camera((0, -4, 0), (0, 0, 0), K, 32, 32), _spp(256), seed=3)
+    assert r.stats["variant"] == backend.variant and r.stats["spp"] == 256
+    centre = r.linear[10:22, 10:22]  # well inside the silhouette (radius ~10 px)
+    assert centre.mean() == pytest.approx(0.5, rel=0.01)
+    assert r.linear[0, 0].mean() == pytest.approx(1.0, rel=1e-3)  # the world itself
+    assert r.rgb.dtype == np.uint8 and r.linear.dtype == np.float32
+
+
+def test_projection_matches_K(backend, tmp_path):
+    """An emissive 1 cm ball's image centroid lands at K @ x within 0.5 px, with an off-centre
+    principal point so the offsets' sign and half-pixel convention are both exercised."""
+    K = np.array([[80.0, 0, 27.3], [0, 80.0, 26.1], [0, 0, 1]])
+    cam = _camera((0.3, -1.0, 0.2), (0.0, 0.0, 0.0), K)
+    R, t = np.asarray(cam.R_w2c), np.asarray(cam.t_w2c)
+    ball = _sphere(tmp_path, radius=0.01, subdiv=3)
+    for p in [(0.0, 0.0, 0.0), (0.12, 0.05, 0.1), (-0.2, 0.1, -0.05)]:
+        mat = MaterialIR(base_color=(0, 0, 0), emission=(50.0, 50.0, 50.0), **DIFFUSE)
+        backend.load(RenderScene(meshes=(MeshInstance("b", ball, "ball", _pose(p), mat),), world=WorldIR(color=(0, 0, 0))))
+        img = backend.render(cam, _spp(64), seed=1).linear.mean(axis=2)
+        ys, xs = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+        got = np.array([(img * xs).sum(), (img * ys).sum()]) / img.sum()
+        x = R @ np.asarray(p) + t
+        want = (K @ x)[:2] / x[2]
+        assert np.abs(got - want).max() < 0.5, (p, got, want)
+
+
+def test_determinism(backend, tmp_path):
+    mesh = MeshInstance("ball", _sphere(tmp_path, 0.3), "s", _pose(), MaterialIR(base_color=(0.6, 0.3, 0.2), roughness=0.3))
+    light = LightIR(kind="area", pose=_pose((0, 0, 1.0)), power=20.0, size=(0.3, 0.3))
+    backend.load(RenderScene(meshes=(mesh,), lights=(light,), world=WorldIR(color=(0.1, 0.1, 0.1))))
+    cam = _camera((0, -1.5, 0.5), (0, 0, 0))
+    a = backend.render(cam, _spp(4), seed=11)
+    b = backend.render(cam, _spp(4), seed=11)
+    c = backend.render(cam, _spp(4), seed=12)
+    assert np.array_equal(a.linear, b.linear) and np.array_equal(a.rgb, b.rgb)
+    assert not np.array_equal(a.linear, c.linear)
+
+
+def test_moving_only_the_sensor(backend, tmp_path):
+    """Views of one arrangement: no reload, a different image, the same image when coming back,
+    and (JIT variants) no new kernel compilation for the new pose."""
+    import drjit as dr
+
+    meshes = (
+        MeshInstance("floor", _quad(tmp_path), "q", as_tuple(np.diag([4.0, 4.0, 1.0, 1.0])), MaterialIR(**DIFFUSE)),
+        MeshInstance("ball", _sphere(tmp_path, 0.3), "s", _pose((0.2, 0, 0.3)), MaterialIR(base_color=(0.8, 0.2, 0.2))),
+    )
+    backend.load(RenderScene(meshes=meshes, lights=(LightIR(kind="point", pose=_pose((0, 0, 2)), power=200.0),)))
+    scene_before = backend._scene
+    v1, v2 = _camera((0, -2, 1), (0, 0, 0.2)), _camera((1.5, -1.2, 0.8), (0, 0, 0.2))
+    a = backend.render(v1, _spp(2), seed=5)
+    jit = dr.is_jit_v(mi.Float)
+    if jit:
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()  # clears it
+    b = backend.render(v2, _spp(2), seed=5)
+    if jit:
+        misses = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit")]
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        assert not misses, "a new camera pose recompiled a kernel"
+    a2 = backend.render(v1, _spp(2), seed=5)
+    assert backend._scene is scene_before
+    assert np.abs(a.linear - b.linear).mean() > 0.01
+    assert np.array_equal(a.linear, a2.linear)
+
+
+def test_vertex_colours_and_texture_orientation(backend, tmp_path):
+    """A Lambertian quad facing the camera in a uniform radiance-1 world renders its albedo, so
+    colours are checked in linear units; the texture's top row must appear at the top."""
+    from PIL import Image
+
+    # looks down -Z with image up = world +Y; the 1 m quad covers pixels ~9..23
+    R, _ = _look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0))
+    K = np.array([[40.0, 0, 15.5], [0, 40.0, 15.5], [0, 0, 1]])
+    cam = CameraIR(K=as_tuple(K), width=32, height=32, R_w2c=as_tuple(R), t_w2c=as_tuple(-R @ np.array([0, 0, 3.0])))
+    world = WorldIR(kind="color", color=(1.0, 1.0, 1.0))
+
+    cols = np.tile(np.array([[255, 128, 0, 255]], np.uint8), (4, 1))
+    quad = MeshInstance("q", _quad(tmp_path, colors=cols), "qc", _pose(), MaterialIR(base_color=(1, 1, 1), **DIFFUSE))
+    backend.load(RenderScene(meshes=(quad,), world=world))
+    px = backend.render(cam, _spp(64), seed=2).linear[12:20, 12:20].reshape(-1, 3).mean(0)
+    want = [1.0, (128 / 255 + 0.055) ** 2.4 / 1.055**2.4, 0.0]
+    assert px == pytest.approx(want, abs=0.02)
+
+    tex = np.zeros((8, 8, 3), np.uint8)
+    tex[:4] = (255, 0, 0)  # top rows red
+    tex[4:] = (0, 255, 0)
+    tp = tmp_path / "tex.png"
+    Image.fromarray(tex).save(tp)
+    quad = MeshInstance("q", _quad(tmp_path, uv=True), "qt", _pose(), MaterialIR(texture=str(tp), base_color=(1, 1, 1), **DIFFUSE))
+    backend.load(RenderScene(meshes=(quad,), world=world))
+    img = backend.render(cam, _spp(16), seed=2).linear
+    top, bottom = img[11:14, 13:19].reshape(-1, 3).mean(0), img[18:21, 13:19].reshape(-1, 3).mean(0)
+    assert top[0] > 0.9 and top[1] < 0.05, top
+    assert bottom[1] > 0.9 and bottom[0] < 0.05, bottom
+
+
+@pytest.mark.parametrize("kind", ["area", "point"])
+def test_light_units_render(backend, tmp_path, kind):
+    """Irradiance below a light at distance d, on a Lambertian floor of albedo rho:
+    area (small, facing down): E = P / (pi d^2); point: E = P / (4 pi d^2); L_out = rho E / pi."""
+    d, rho = 1.0, 0.5
+    floor = MeshInstance("f", _quad(tmp_path), "q", as_tuple(np.diag([0.2, 0.2, 1.0, 1.0])), MaterialIR(base_color=(rho,) * 3, **DIFFUSE))
+    P = 10.0
+    light = LightIR(kind=kind, pose=_pose((0, 0, d)), power=P, size=(0.02, 0.02))
+    backend.load(RenderScene(meshes=(floor,), lights=(light,), world=WorldIR(color=(0, 0, 0))))
+    R, _ = _look_at((0, -0.3, 0.5), (0, 0, 0))
+    cam = CameraIR(
+        K=as_tuple(np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])), width=64, height=48,
+        R_w2c=as_tuple(R), t_w2c=as_tuple(-R @ np.array([0, -0.3, 0.5])),
+    )
+    img = backend.render(cam, _spp(64), seed=4).linear
+    E = P / (math.pi * d * d) if kind == "area" else P / (4 * math.pi * d * d)
+    centre = img[22:26, 30:34].mean()  # the floor point under the light projects to ~(31.5, 23.5)
+    assert centre == pytest.approx(rho * E / math.pi, rel=0.03)
+
+
+def test_clamp_is_reported_not_silent(backend, tmp_path):
+    mesh = MeshInstance("ball", _sphere(tmp_path, 0.3, 2), "s", _pose(), MaterialIR(**DIFFUSE))
+    backend.load(RenderScene(meshes=(mesh,), world=WorldIR(color=(0.5, 0.5, 0.5))))
+    with pytest.warns(UserWarning, match="clamp"):
+        r = backend.render(_camera((0, -2, 0), (0, 0, 0)), _spp(1), seed=0, clamp=10.0)
+    assert r.stats["clamp_ignored"] == 10.0
+
+
+def test_vertex_colour_times_texture(backend, tmp_path):
+    """base_color x vertex colour x texture, the Cycles backend's product."""
+    from PIL import Image
+
+    R, _ = _look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0))
+    K = np.array([[40.0, 0, 15.5], [0, 40.0, 15.5], [0, 0, 1]])
+    cam = CameraIR(K=as_tuple(K), width=32, height=32, R_w2c=as_tuple(R), t_w2c=as_tuple(-R @ np.array([0, 0, 3.0])))
+    tp = tmp_path / "grey.png"
+    Image.fromarray(np.full((4, 4, 3), 255, np.uint8)).save(tp)
+    cols = np.tile(np.array([[255, 255, 0, 255]], np.uint8), (4, 1))
+    mat = MaterialIR(base_color=(0.5, 0.25, 1.0), texture=str(tp), **DIFFUSE)
+    quad = MeshInstance("q", _quad(tmp_path, colors=cols, uv=True), "qct", _pose(), mat)
+    backend.load(RenderScene(meshes=(quad,), world=WorldIR(kind="color", color=(1.0, 1.0, 1.0))))
+    px = backend.render(cam, _spp(64), seed=2).linear[12:20, 12:20].reshape(-1, 3).mean(0)
+    assert px == pytest.approx([0.5, 0.25, 0.0], abs=0.02)
+
+
+def test_sun_and_spot_conventions():
+    assert mapping.sun_direction(0.0, 0.0) == pytest.approx([0.0, 1.0, 0.0], abs=1e-12)
+    assert mapping.sun_direction(0.0, 90.0) == pytest.approx([-1.0, 0.0, 0.0], abs=1e-12)
+    assert mapping.sun_direction(90.0, 33.0)[2] == pytest.approx(1.0)
+    cutoff, beam = mapping.spot_angles(60.0, 0.0)
+    assert cutoff == pytest.approx(30.0) and beam == pytest.approx(30.0)
+    assert mapping.spot_angles(60.0, 1.0)[1] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_new_arrangement_reuses_kernels(backend, tmp_path):
+    """A new arrangement with the same structure (moved objects, other colours) must not
+    recompile: kernels key on object registry ids, which load() keeps stable."""
+    import dataclasses
+
+    import drjit as dr
+
+    if not dr.is_jit_v(mi.Float):
+        pytest.skip("scalar variant has no kernels")
+    floor = MeshInstance("floor", _quad(tmp_path), "q", as_tuple(np.diag([4.0, 4.0, 1.0, 1.0])), MaterialIR(**DIFFUSE))
+    ball = MeshInstance("ball", _sphere(tmp_path, 0.3, 2), "s", _pose((0.2, 0, 0.3)), MaterialIR(base_color=(0.8, 0.2, 0.2)))
+    light = LightIR(kind="area", pose=_pose((0, 0, 2)), power=50.0)
+    cam = _camera((0, -2, 1), (0, 0, 0.2))
+    backend.load(RenderScene(meshes=(floor, ball), lights=(light,)))
+    backend.render(cam, _spp(2), seed=1)
+    moved = dataclasses.replace(ball, pose=_pose((-0.1, 0.1, 0.3)), material=MaterialIR(base_color=(0.1, 0.5, 0.9)))
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        for _ in range(2):
+            backend.load(RenderScene(meshes=(floor, moved), lights=(light,)))
+            backend.render(cam, _spp(2), seed=1)
+        misses = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit")]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert not misses
