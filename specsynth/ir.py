@@ -16,7 +16,7 @@ These are plain frozen dataclasses so that they pickle cheaply to worker process
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -100,6 +100,22 @@ class RenderScene:
     def objects_only(self) -> "RenderScene":
         return RenderScene(meshes=self.objects(), lights=self.lights, world=self.world)
 
+    def translated(self, offset) -> "RenderScene":
+        """The scene moved by ``-offset`` (metres). Renderers work in float32: re-centring an
+        arrangement 1 km from the origin keeps sub-millimetre precision in their transforms."""
+        o = np.asarray(offset, dtype=np.float64)
+        if not o.any():
+            return self
+
+        def move(pose):
+            T = np.array(pose, dtype=np.float64)
+            T[:3, 3] -= o
+            return as_tuple(T)
+
+        meshes = tuple(replace(m, pose=move(m.pose)) for m in self.meshes)
+        lights = tuple(replace(light, pose=move(light.pose)) for light in self.lights)
+        return RenderScene(meshes=meshes, lights=lights, world=self.world)
+
     @property
     def has_glossy(self) -> bool:
         return any(m.material.glossy for m in self.meshes)
@@ -118,6 +134,11 @@ class CameraIR:
     t_w2c: tuple[float, float, float]  # metres
     near: float = 0.01
     far: float = 100.0
+
+    def translated(self, offset) -> "CameraIR":
+        """The same view of a scene moved by ``-offset``: ``t' = t + R @ offset``."""
+        t = np.asarray(self.t_w2c, dtype=np.float64) + np.asarray(self.R_w2c) @ np.asarray(offset, dtype=np.float64)
+        return replace(self, t_w2c=as_tuple(t))
 
     @property
     def K_array(self) -> np.ndarray:

@@ -86,6 +86,7 @@ class Worker:
         raise KeyError(name)
 
     def render_scene(self, arr: ArrangementRecord) -> RenderScene:
+        """The arrangement in world coordinates (see ``frame`` for what renderers get)."""
         by_id = {a.obj_id: a for a in self.assets()}
         objects = tuple(
             MeshInstance(
@@ -101,8 +102,19 @@ class Worker:
         )
         return self.scene(self._scene_ref(arr.scene)).with_objects(objects)
 
-    def camera(self, R_w2c, t_w2c):
-        return cameras.camera_ir(self.spec.intrinsics, np.asarray(R_w2c), np.asarray(t_w2c))
+    def frame(self, arr: ArrangementRecord) -> tuple[RenderScene, np.ndarray]:
+        """The scene re-centred on its objects, and the offset to apply to cameras.
+
+        Annotations are invariant (poses relative to the camera), so records keep world poses.
+        """
+        scene = self.render_scene(arr)
+        objs = scene.objects()
+        origin = np.mean([o.matrix[:3, 3] for o in objs], axis=0) if objs else np.zeros(3)
+        return scene.translated(origin), origin
+
+    def camera(self, R_w2c, t_w2c, origin=None):
+        cam = cameras.camera_ir(self.spec.intrinsics, np.asarray(R_w2c), np.asarray(t_w2c))
+        return cam if origin is None else cam.translated(origin)
 
     # ------------------------------------------------------------------ stages
     def run_arrange(self, job: Job) -> dict[str, Any]:
@@ -148,7 +160,7 @@ class Worker:
     def run_views(self, arrange_key: str, jobs: list[Job]) -> list[dict[str, Any]]:
         spec = self.spec
         arr = ArrangementRecord.from_json(self.store.load("arrange", arrange_key))
-        scene = self.render_scene(arr)
+        scene, origin = self.frame(arr)
         objects = scene.objects()
         annot = self.annotator()
         if objects:
@@ -166,10 +178,10 @@ class Worker:
                 focus = objects[int(rng.integers(len(objects)))]
                 a = by_id[focus.obj_id]
                 centre = np.asarray(a.bbox_min) + 0.5 * np.asarray(a.extents)
-                target = (focus.matrix @ np.append(centre, 1.0))[:3]
+                target = (focus.matrix @ np.append(centre, 1.0))[:3] + origin  # world frame
                 s = cameras.sample_camera(rng, target, spec.cameras)
                 t0 = time.perf_counter()
-                vf = annot.visib_fract(self.camera(s.R_w2c, s.t_w2c), focus.inst, spec.visibility.delta)
+                vf = annot.visib_fract(self.camera(s.R_w2c, s.t_w2c, origin), focus.inst, spec.visibility.delta)
                 rec.tries += 1
                 if vf >= spec.visibility.threshold:
                     rec.accepted = True
@@ -188,7 +200,7 @@ class Worker:
 
         spec = self.spec
         arr = ArrangementRecord.from_json(self.store.load("arrange", arrange_key))
-        scene = self.render_scene(arr)
+        scene, origin = self.frame(arr)
         backend = self.backend()
         annot = self.annotator()
         t0 = time.perf_counter()
@@ -203,7 +215,7 @@ class Worker:
             if self.store.has("render", job.key):  # finished before a retry
                 continue
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
-            cam = self.camera(view.R_w2c, view.t_w2c)
+            cam = self.camera(view.R_w2c, view.t_w2c, origin)
             t1 = time.perf_counter()
             res = backend.render(cam, preset, job.seed, clamp=spec.quality.clamp)
             seconds = time.perf_counter() - t1
