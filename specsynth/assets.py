@@ -15,6 +15,7 @@ import difflib
 import functools
 import hashlib
 import importlib.util
+from importlib import metadata
 import json
 import math
 import os
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from . import spec as spec_mod
+from .colour import srgb_to_linear
 from .ir import MaterialIR
 from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
 
@@ -126,10 +128,14 @@ def resolve_data_ref(ref: str, base: Path, what: str) -> Path:
 
 
 def _studiolights_dir() -> Path | None:
-    s = importlib.util.find_spec("bpy")  # never import bpy here: it is a 300 MB renderer
-    if s is None or s.origin is None:
+    """The bpy wheel's HDRI folder, found through the installed distribution, not ``import bpy``
+    (a 300 MB renderer) nor ``find_spec``: once a process has imported bpy, its sys.path (which
+    spawned workers inherit) resolves ``bpy`` to a pure-Python package far from the data files."""
+    try:
+        root = Path(metadata.distribution("bpy").locate_file("bpy"))
+    except metadata.PackageNotFoundError:
         return None
-    hits = sorted(Path(s.origin).parent.glob("*/datafiles/studiolights/world"))
+    hits = sorted(root.glob("*/datafiles/studiolights/world"))
     return hits[-1] if hits else None
 
 
@@ -286,11 +292,6 @@ def _mtl_texture(obj_path: Path) -> tuple[Path | None, tuple[float, float, float
     tex_path = obj_path.parent / tex.group(1) if tex else None
     return (tex_path if tex_path is not None and tex_path.is_file() else None,
             tuple(float(x) for x in kd.groups()) if kd else None)
-
-
-def srgb_to_linear(c):
-    c = np.asarray(c, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 # --------------------------------------------------------------------------- mesh readers
@@ -740,7 +741,7 @@ def _convert_builtin(src: _Source):
         else:
             m = _primitive_mesh(vis.primitive)
         if vis.rgba is not None and colour is None:
-            colour = tuple(float(x) for x in srgb_to_linear(vis.rgba[:3]))
+            colour = tuple(float(x) for x in srgb_to_linear(np.asarray(vis.rgba[:3])))
         S = np.diag([*vis.scale, 1.0])
         parts.append(procedural.transform_mesh(m, up @ vis.matrix @ S))
     if len({p.uv is None for p in parts}) > 1:  # UVs only matter with one textured part

@@ -11,7 +11,6 @@ instance); folder photos through a byte-bounded LRU so that a large folder does 
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ from typing import Callable
 import numpy as np
 from PIL import Image
 
+from specsynth.assets import builtin_hdris, hdri_path
 from specsynth.colour import linear_to_srgb8
 
 # scikit-image sample images that are real photographs, with the file each needs. Only those whose
@@ -72,14 +72,8 @@ def skimage_photo_names() -> list[str]:
 
 
 def hdri_paths() -> list[Path]:
-    """The HDR panoramas in the bpy wheel, found without importing bpy (that costs seconds)."""
-    spec = importlib.util.find_spec("bpy")
-    if spec is None or not spec.submodule_search_locations:
-        return []
-    paths: list[Path] = []
-    for loc in spec.submodule_search_locations:
-        paths += Path(loc).glob("*/datafiles/studiolights/world/*.exr")
-    return sorted(paths, key=lambda p: p.name)
+    """The HDR panoramas in the bpy wheel (``specsynth.assets`` finds them without importing bpy)."""
+    return [hdri_path(name) for name in builtin_hdris()]
 
 
 def folder_photos(folder: str | Path) -> list[Path]:
