@@ -110,3 +110,36 @@ def test_second_build_into_same_folder_is_refused(spec_file, tmp_path):
                            capture_output=True, text=True)
         assert r.returncode == 2
         assert "another build" in r.stderr and "Traceback" not in r.stderr
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
+    """The documented setup: `dask scheduler` + `dask worker` processes, then --executor dask://HOST:PORT."""
+    pytest.importorskip("distributed")
+    bindir = Path(sys.executable).parent
+    port = _free_port()
+    procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        procs.append(subprocess.Popen([str(bindir / "dask"), "worker", f"tcp://127.0.0.1:{port}", "--nworkers", "2",
+                                       "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        from distributed import Client
+
+        with Client(f"tcp://127.0.0.1:{port}", timeout=60) as c:
+            c.wait_for_workers(2, timeout=120)
+        cli_build(spec_file, tmp_path / "remote", "--executor", f"dask://127.0.0.1:{port}")
+        assert tree_digest(tmp_path / "remote") == tree_digest(reference)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
