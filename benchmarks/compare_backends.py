@@ -35,8 +35,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     w = args.width
     h = w * 3 // 4
-    intr = Intrinsics(width=w, height=h, fx=0.8 * w, fy=0.8 * w, cx=w / 2 - 0.5, cy=h / 2 - 0.5)
-    q = QualityPreset(aa=args.spp, diffuse_rays=args.spp, specular_rays=args.spp, diffuse_depth=3, specular_depth=3, max_depth=4)
+    intr = Intrinsics(width=w, height=h, fx=0.45 * w, fy=0.45 * w, cx=w / 2 - 0.5, cy=h / 2 - 0.5)
+    # diffuse and specular depth = max depth: Mitsuba's path integrator has only the total limit.
+    q = QualityPreset(aa=args.spp, diffuse_rays=args.spp, specular_rays=args.spp, diffuse_depth=4, specular_depth=4, max_depth=4)
     results = {}
     backends = {name: load_backend(name)({"name": name}, threads=0) for name in ("cycles", "mitsuba")}
     for name in args.scenes or builtin_scenes():
@@ -51,6 +52,12 @@ def main() -> None:
             dt = time.perf_counter() - t0
             write_png(out / f"{name}_{b}.png", np.asarray(draw_stages(imgs[b].rgb, scene, cam)))
             results.setdefault(name, {})[f"{b}_seconds"] = round(dt, 1)
+        # Each backend against itself with another seed: the PSNR that noise alone allows.
+        noise = {}
+        for b, backend in backends.items():
+            backend.load(rs)
+            noise[b] = round(psnr8(imgs[b].rgb, backend.render(cam, q, seed=2).rgb), 2)
+        results[name]["self_psnr_db"] = noise
         c, m = imgs["cycles"], imgs["mitsuba"]
         ratio = (m.linear.reshape(-1, 3).mean(0) / np.maximum(c.linear.reshape(-1, 3).mean(0), 1e-9)).round(3).tolist()
         results[name].update({"psnr_db": round(psnr8(c.rgb, m.rgb), 2), "mitsuba_over_cycles_mean_radiance": ratio})

@@ -81,7 +81,9 @@ class WorldIR:
     strength: float = 1.0
     envmap: str | None = None  # equirectangular HDR/EXR file
     rotation_z: float = 0.0  # degrees, rotation of the environment about world Z
-    # sky: a physical daylight model (Nishita in Cycles); sun direction in degrees.
+    # sky: a physical daylight model of the sky dome only (no sun disc: put the sun in the scene as
+    # a LightIR of kind "sun" pointing the same way); sun direction in degrees, azimuth 0 = +Y,
+    # counter-clockwise seen from above (Blender's convention).
     sun_elevation: float = 45.0
     sun_azimuth: float = 0.0
     turbidity: float = 3.0

@@ -14,18 +14,35 @@ from .scenes import load_scene
 from .spec import Intrinsics, QualityPreset
 
 
-def overview_camera(scene, intr: Intrinsics, azimuth: float = 35.0, elevation: float = 35.0):
-    """A camera that frames every stage: looks at their centre from outside their bounding sphere."""
+def _world_bounds(scene) -> np.ndarray:
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for m in scene.meshes:
+        b = read_mesh(m.mesh_path).bounds
+        corners = np.array([[x, y, z] for x in b[:, 0] for y in b[:, 1] for z in b[:, 2]])
+        w = corners @ m.matrix[:3, :3].T + m.matrix[:3, 3]
+        lo, hi = np.minimum(lo, w.min(0)), np.maximum(hi, w.max(0))
+    return np.stack([lo, hi])
+
+
+def overview_camera(scene, intr: Intrinsics):
+    """A camera inside the scene's bounds (rooms are closed boxes), high in the corner from which
+    most stage corners fall inside the image, looking at the stages' centre."""
     pts = np.array([(x, y, s.height) for s in scene.stages.values() for x, y in s.polygon], dtype=np.float64)
-    if len(pts) == 0:
-        pts = np.concatenate([(m.matrix[:3, :3] @ read_mesh(m.mesh_path).bounds.T).T + m.matrix[:3, 3] for m in scene.meshes])
-    centre = 0.5 * (pts.min(0) + pts.max(0))
-    radius = float(np.linalg.norm(pts - centre, axis=1).max()) + 0.3
-    fov = 2 * np.arctan(min(intr.width / intr.fx, intr.height / intr.fy) / 2)
-    dist = radius / np.sin(fov / 2)
-    eye = centre + cameras.spherical_offset(azimuth, elevation, dist)
-    R, t = cameras.look_at(eye, centre)
-    return cameras.camera_ir(intr, R, t)
+    lo, hi = _world_bounds(scene)
+    centre = pts.mean(0) if len(pts) else 0.5 * (lo + hi)
+    best = None
+    for cx in (lo[0], hi[0]):
+        for cy in (lo[1], hi[1]):
+            eye = centre + 0.85 * (np.array([cx, cy, 0.0]) - np.array([centre[0], centre[1], 0.0]))
+            eye[2] = lo[2] + 0.8 * (hi[2] - lo[2])
+            R, t = cameras.look_at(eye, centre)
+            cam = cameras.camera_ir(intr, R, t)
+            pc = pts @ R.T + t
+            uv = cameras.project(cam.K_array, R, t, pts)
+            seen = int(((pc[:, 2] > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)).sum())
+            if best is None or seen > best[0]:
+                best = (seen, cam)
+    return best[1]
 
 
 def draw_stages(rgb: np.ndarray, scene, cam) -> Image.Image:
@@ -47,7 +64,7 @@ def draw_stages(rgb: np.ndarray, scene, cam) -> Image.Image:
 
 def preview_scene(name: str, backend: str, dest: Path, *, width: int = 640, height: int = 480, samples: int = 16) -> Path:
     scene = load_scene(name, Path.cwd())
-    intr = Intrinsics(width=width, height=height, fx=0.8 * width, fy=0.8 * width, cx=width / 2 - 0.5, cy=height / 2 - 0.5)
+    intr = Intrinsics(width=width, height=height, fx=0.45 * width, fy=0.45 * width, cx=width / 2 - 0.5, cy=height / 2 - 0.5)
     cam = overview_camera(scene, intr)
     cls = load_backend(backend)
     if not cls.draws_scene:

@@ -169,13 +169,14 @@ def world_dict(world: WorldIR) -> dict | None:
             "to_world": mapping.envmap_to_world(world.rotation_z),
         }
     if world.kind == "sky":
-        # Hosek-Wilkie sun + sky in physical units (Cycles uses Nishita: brightness differs).
+        # Hosek-Wilkie sky in physical units (Cycles uses its scattering model: brightness differs).
+        # Sky only: the sun is a LightIR sun in the scene, as in the Cycles backend.
         return {
             "type": "sunsky",
             "sun_direction": mapping.sun_direction(world.sun_elevation, world.sun_azimuth),
             "turbidity": float(min(max(world.turbidity, 1.0), 10.0)),
             "sky_scale": float(world.strength),
-            "sun_scale": float(world.strength),
+            "sun_scale": 0.0,
         }
     raise ValueError(f"unknown world kind {world.kind!r}")
 
