@@ -155,7 +155,11 @@ def cmd_scenes(args) -> int:
     if args.action == "preview":
         from .preview import preview_scene
 
-        preview_scene(args.name, args.backend, Path(args.out))
+        if not args.name:
+            print("error: scenes preview needs a scene name (see `specsynth scenes`)", file=sys.stderr)
+            return 2
+        preview_scene(args.name, args.backend, Path(args.out), width=args.width, height=args.width * 3 // 4,
+                      samples=args.samples)
         print(f"wrote {args.out}")
         return 0
     t = Table(title="built-in scenes")
@@ -257,8 +261,10 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("scenes", help="list built-in scenes and their stages, or preview one")
     p.add_argument("action", nargs="?", choices=["list", "preview"], default="list")
     p.add_argument("name", nargs="?")
-    p.add_argument("--backend", default="photo")
+    p.add_argument("--backend", default="cycles", help="a backend that draws scenes: cycles or mitsuba")
     p.add_argument("--out", default="scene.png")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--samples", type=int, default=32)
     p.set_defaults(fn=cmd_scenes)
 
     p = sub.add_parser("view", help="contact sheet of sampled images with boxes, mask outlines, ids")

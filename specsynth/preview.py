@@ -25,23 +25,40 @@ def _world_bounds(scene) -> np.ndarray:
 
 
 def overview_camera(scene, intr: Intrinsics):
-    """A camera inside the scene's bounds (rooms are closed boxes), high in the corner from which
-    most stage corners fall inside the image, looking at the stages' centre."""
-    pts = np.array([(x, y, s.height) for s in scene.stages.values() for x, y in s.polygon], dtype=np.float64)
+    """A camera that shows every stage as large as possible from inside the scene's bounds (rooms
+    are closed boxes): candidates around the stages' centre at 8 azimuths and 2 elevations, each
+    pulled in until it is inside the bounds; the best shows all stage corners and most stage area."""
+    stages = list(scene.stages.values())
+    pts = np.array([(x, y, s.height) for s in stages for x, y in s.polygon], dtype=np.float64)
     lo, hi = _world_bounds(scene)
+    lo, hi = lo + 0.15, hi - 0.15
     centre = pts.mean(0) if len(pts) else 0.5 * (lo + hi)
+    radius = float(np.linalg.norm(pts - centre, axis=1).max()) + 0.2 if len(pts) else 1.0
+    fov = 2 * np.arctan(min(intr.width / intr.fx, intr.height / intr.fy) / 2)
     best = None
-    for cx in (lo[0], hi[0]):
-        for cy in (lo[1], hi[1]):
-            eye = centre + 0.85 * (np.array([cx, cy, 0.0]) - np.array([centre[0], centre[1], 0.0]))
-            eye[2] = lo[2] + 0.8 * (hi[2] - lo[2])
+    for elevation in (30.0, 50.0):
+        for azimuth in range(0, 360, 45):
+            d = cameras.spherical_offset(azimuth, elevation, radius / np.sin(fov / 2))
+            # the largest fraction of the offset that keeps the eye inside the bounds
+            with np.errstate(divide="ignore", invalid="ignore"):
+                limits = np.where(d > 0, (hi - centre) / d, np.where(d < 0, (lo - centre) / d, np.inf))
+            eye = centre + d * float(np.clip(limits.min(), 0.05, 1.0))
             R, t = cameras.look_at(eye, centre)
-            cam = cameras.camera_ir(intr, R, t)
-            pc = pts @ R.T + t
-            uv = cameras.project(cam.K_array, R, t, pts)
-            seen = int(((pc[:, 2] > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)).sum())
-            if best is None or seen > best[0]:
-                best = (seen, cam)
+            K = cameras.intrinsics_matrix(intr)
+            # Union of the stages' image areas (overlapping stages count once), rasterised.
+            union = Image.new("1", (intr.width, intr.height))
+            seen = 0
+            for s in stages:
+                poly = np.array([(x, y, s.height) for x, y in s.polygon])
+                pc = poly @ R.T + t
+                uv = cameras.project(K, R, t, poly)
+                ok = (pc[:, 2] > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+                seen += int(ok.sum())
+                if ok.all():
+                    ImageDraw.Draw(union).polygon([tuple(p) for p in uv], fill=1)
+            score = (seen, int(np.asarray(union).sum()))
+            if best is None or score > best[0]:
+                best = (score, cameras.camera_ir(intr, R, t))
     return best[1]
 
 
