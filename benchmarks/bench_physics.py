@@ -27,7 +27,8 @@ from specsynth.physics import ArrangeError, ShapeCache, arrange, build_collision
 from specsynth.scenes.types import SceneDesc, Stage
 from specsynth.spec import Arrangements, Physics
 
-YCBV = Path("/work/shared/data/ycbv_models_subset/models")
+# ../shared beside the repository, as in CI.
+YCBV = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycbv_models_subset" / "models"
 TABLE_TOP = 0.75
 
 

@@ -116,6 +116,9 @@ def cmd_build(args) -> int:
         f"({s.rejected_seconds:.2f} s spent on them)   objects removed by physics: {s.objects_removed}   "
         f"re-dropped: {s.objects_redropped}"
     )
+    if s.saved:
+        out.print("time saved (s): " + ", ".join(f"{k.replace('_', ' ')} {v:.1f}" for k, v in s.saved.items())
+                  + f"; glossy bounces skipped in {s.glossy_bounces_skipped} render(s)")
     if s.failures:
         out.print(f"[red]{len(s.failures)} failed job group(s); see {Path(args.out) / 'failures.json'}[/red]")
         for f in s.failures[:10]:

@@ -168,3 +168,11 @@ def test_outputs_are_consistent_across_formats(built):
     assert n == sum(len(v) for v in gt.values()) == s.instances
     coco = COCO(str(chunk / "scene_gt_coco.json"))
     assert len(coco.getImgIds()) == s.images
+
+
+def test_summary_accounts_for_what_was_skipped(built, spec_file):
+    out, first = built
+    assert set(first.saved) == {"visibility_precheck", "scene_loaded_once_per_arrangement", "cache"}
+    assert first.saved["cache"] == 0.0
+    again = build(graph(spec_file), out, jobs=1)
+    assert again.saved["cache"] > 0  # every render came from the store
