@@ -35,7 +35,7 @@ test-all: install
 	$(BIN)/pytest -q -p no:cacheprovider
 
 bench: install
-	$(BIN)/specsynth bench specs/demo.yaml --out bench-out
+	$(BIN)/specsynth bench specs/demo.yaml --out bench-out/demo --views 2 --scale 0.25 --ref-factor 4
 
 schema: install
 	$(BIN)/specsynth schema

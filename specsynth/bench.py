@@ -128,7 +128,9 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             opts.update({k: v for k, v in st.options.items() if not k.startswith("__")})
             preset = spec.quality.model_copy(update={"level": st.level}).resolved()
             if st.reference:
-                preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * st.options["__factor__"]})
+                f = st.options["__factor__"]  # every ray count: backends take samples from their max
+                preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * f,
+                                          "diffuse_rays": preset.diffuse_rays * f, "specular_rays": preset.specular_rays * f})
             backend = cls(type(spec.backend).model_validate(opts) if spec.backend.name == name else opts, threads=0)
             times, errs = [], []
             samples = 0

@@ -202,11 +202,19 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
 
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
 
-        def fail(stage: str):
-            def handler(meta, e):
-                summary.stages[stage].failed += 1
-                summary.failures.append({"stage": stage, "job": str(meta), "error": f"{type(e).__name__}: {e}"})
-            return handler
+        def handlers(stage: str, prog, task):
+            """Progress and failure bookkeeping; ``meta`` is (job or group id, number of jobs)."""
+            st = summary.stages[stage]
+
+            def done(meta, res):
+                st.ran += meta[1]
+                prog.advance(task, meta[1])
+
+            def failed(meta, e):
+                st.failed += meta[1]
+                summary.failures.append({"stage": stage, "job": meta[0], "error": f"{type(e).__name__}: {e}"})
+
+            return done, failed
 
         try:
             with _progress(console) as prog:
@@ -217,13 +225,8 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                 todo = [a for a, _, _ in arr_jobs if not store.has("arrange", a.key)]
                 st.cached = st.total - len(todo)
                 task = prog.add_task("arrange", total=st.total, completed=st.cached)
-                calls = [(task_arrange, (a,), a.id) for a in todo]
-
-                def arr_done(meta, res):
-                    st.ran += 1
-                    prog.advance(task)
-
-                run(calls, arr_done, fail("arrange"))
+                calls = [(task_arrange, (a,), (a.id, 1)) for a in todo]
+                run(calls, *handlers("arrange", prog, task))
                 st.seconds = time.perf_counter() - t0
 
                 # -------------------------------------------------- view
@@ -241,15 +244,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     if todo_v:
                         calls.append((task_views, (a.key, todo_v), (a.id, len(todo_v))))
 
-                def views_done(meta, res):
-                    sv.ran += len(res)
-                    prog.advance(task, len(res))
-
-                def views_failed(meta, e):
-                    sv.failed += meta[1]
-                    summary.failures.append({"stage": "view", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
-
-                run(calls, views_done, views_failed, split_group)
+                run(calls, *handlers("view", prog, task), split_group)
                 sv.seconds = time.perf_counter() - t0
 
                 if until == "view":
@@ -283,15 +278,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                 task = prog.add_task("render", total=sr.total, completed=sr.cached)
                 calls = [(task_renders, (key, pairs), (_group_id(pairs[0]), len(pairs))) for key, pairs in pending]
 
-                def renders_done(meta, res):
-                    sr.ran += len(res)
-                    prog.advance(task, len(res))
-
-                def renders_failed(meta, e):
-                    sr.failed += meta[1]
-                    summary.failures.append({"stage": "render", "job": meta[0], "error": f"{type(e).__name__}: {e}"})
-
-                run(calls, renders_done, renders_failed, split_group)
+                run(calls, *handlers("render", prog, task), split_group)
                 sr.seconds = time.perf_counter() - t0
         finally:
             ex.shutdown()

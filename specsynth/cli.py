@@ -288,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--views", type=int, default=2)
     p.add_argument("--repeats", type=int, default=1, help="renders per setting and view (median)")
     p.add_argument("--ref-factor", type=int, default=4, help="reference samples = factor x high preset")
-    p.add_argument("--scale", type=float, default=0.5, help="image scale (0.5 = 320x240 for VGA specs)")
+    p.add_argument("--scale", type=float, default=0.25, help="image scale (0.25 = 160x120 for VGA specs)")
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
     p.set_defaults(fn=cmd_bench)
 

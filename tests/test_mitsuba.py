@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from specsynth.cameras import look_at
 from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
 from specsynth.meshio import MeshData, write_mesh
 from specsynth.spec import PAPER_PRESETS, QualityPreset
@@ -107,20 +108,10 @@ def _pose(t=(0.0, 0.0, 0.0)) -> tuple:
     return as_tuple(T)
 
 
-def _look_at(eye, target, up=(0, 0, 1)):
-    """OpenCV world-to-camera (x right, y down, z forward)."""
-    eye, target, up = (np.asarray(a, float) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ eye
 
 
 def _camera(eye, target, K=None, W=64, H=48) -> CameraIR:
-    R, t = _look_at(eye, target)
+    R, t = look_at(np.asarray(eye, float), np.asarray(target, float))
     if K is None:
         K = np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])
     return CameraIR(K=as_tuple(K), width=W, height=H, R_w2c=as_tuple(R), t_w2c=as_tuple(t))
@@ -215,7 +206,7 @@ def test_vertex_colours_and_texture_orientation(backend, tmp_path):
     from PIL import Image
 
     # looks down -Z with image up = world +Y; the 1 m quad covers pixels ~9..23
-    R, _ = _look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0))
+    R, _ = look_at(np.array([0.0, 0, 3]), np.zeros(3), up=np.array([0.0, 1, 0]))
     K = np.array([[40.0, 0, 15.5], [0, 40.0, 15.5], [0, 0, 1]])
     cam = CameraIR(K=as_tuple(K), width=32, height=32, R_w2c=as_tuple(R), t_w2c=as_tuple(-R @ np.array([0, 0, 3.0])))
     world = WorldIR(kind="color", color=(1.0, 1.0, 1.0))
@@ -272,7 +263,7 @@ def test_vertex_colour_times_texture(backend, tmp_path):
     """base_color x vertex colour x texture, the Cycles backend's product."""
     from PIL import Image
 
-    R, _ = _look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0))
+    R, _ = look_at(np.array([0.0, 0, 3]), np.zeros(3), up=np.array([0.0, 1, 0]))
     K = np.array([[40.0, 0, 15.5], [0, 40.0, 15.5], [0, 0, 1]])
     cam = CameraIR(K=as_tuple(K), width=32, height=32, R_w2c=as_tuple(R), t_w2c=as_tuple(-R @ np.array([0, 0, 3.0])))
     tp = tmp_path / "grey.png"

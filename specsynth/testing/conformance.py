@@ -33,6 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..backend_api import RenderBackend, load_backend
+from ..cameras import look_at
 from ..colour import check_finite
 from ..ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderResult, RenderScene, WorldIR, as_tuple
 from ..meshio import MeshData, mesh_bytes, write_mesh
@@ -68,16 +69,6 @@ def _require(cond: bool, backend: str, msg: str) -> None:
 # --------------------------------------------------------------------------- the test scene
 
 
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV world-to-camera rotation and translation of a camera at ``eye`` looking at ``target``."""
-    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ eye
 
 
 def make_camera(eye=EYE, target=TARGET) -> CameraIR:
