@@ -240,7 +240,7 @@ def test_light_units_render(backend, tmp_path, kind):
     P = 10.0
     light = LightIR(kind=kind, pose=_pose((0, 0, d)), power=P, size=(0.02, 0.02))
     backend.load(RenderScene(meshes=(floor,), lights=(light,), world=WorldIR(color=(0, 0, 0))))
-    R, _ = _look_at((0, -0.3, 0.5), (0, 0, 0))
+    R, _ = look_at(np.array([0, -0.3, 0.5]), np.zeros(3))
     cam = CameraIR(
         K=as_tuple(np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])), width=64, height=48,
         R_w2c=as_tuple(R), t_w2c=as_tuple(-R @ np.array([0, -0.3, 0.5])),
