@@ -176,7 +176,7 @@ def _run(ex, calls: list[tuple[Callable, tuple, Any]], on_done: Callable[[Any, A
 
 
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
-          console=None, retries: int = 2, until: str = "merge") -> BuildSummary:
+          console=None, retries: int = 2, until: str = "merge", threads: int | None = None) -> BuildSummary:
     """Run the graph; ``until="view"`` stops after the camera stage (used by ``bench``)."""
     from .tasks import BuildContext, task_arrange, task_renders, task_views
 
@@ -186,7 +186,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     with output_lock(out):
         store = Store(out)
         store.clean_tmp()
-        threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
+        threads = threads or max(1, (os.cpu_count() or 1) // max(1, jobs))
         ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         window = 2 * max(1, getattr(ex, "workers", jobs))

@@ -107,7 +107,8 @@ def cmd_build(args) -> int:
     executor, address = args.executor, None
     if "://" in executor:
         executor, address = executor.split("://", 1)
-    s = build(graph, Path(args.out), executor=executor, jobs=args.jobs, address=address, console=console)
+    s = build(graph, Path(args.out), executor=executor, jobs=args.jobs, address=address, console=console,
+              threads=args.threads)
     out = Console()
     out.print(_summary_table(s))
     out.print(
@@ -252,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     p.add_argument("--executor", default="local", help="local (default) or dask://HOST:PORT")
+    p.add_argument("--threads", type=int, default=None, help="renderer threads per worker (default: cores / jobs)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(fn=cmd_build)
 

@@ -267,9 +267,12 @@ _worker: Worker | None = None
 
 def init_worker(ctx: BuildContext) -> None:
     global _worker
-    # Renderers must not oversubscribe the cores the pool already splits between workers.
+    # Renderers must not oversubscribe the cores the pool already splits between workers: OpenMP
+    # (Blender, OIDN) and Mesa's llvmpipe (annotation engine, photo backend) read these before
+    # their first context is created in this process.
     if ctx.threads:
         os.environ["OMP_NUM_THREADS"] = str(ctx.threads)
+        os.environ["LP_NUM_THREADS"] = str(ctx.threads)
     _worker = Worker(ctx)
 
 
