@@ -15,7 +15,8 @@ from specsynth.assets import AssetError
 from specsynth.meshio import read_mesh
 from specsynth.spec import Material, MeshObject, Objects
 
-YCBV = Path("/work/shared/data/ycbv_models_subset/models")
+# ../shared beside the repository (as in CI).
+YCBV = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycbv_models_subset" / "models"
 DATA = Path(__file__).parent / "data"
 
 
