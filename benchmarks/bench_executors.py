@@ -41,8 +41,9 @@ def overhead(name: str, jobs: int, ctx: BuildContext, n: int = 200) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--arrangements", type=int, default=12)
+    ap.add_argument("--backend", default="photo", help="photo (physics/annotation-bound) or cycles (render-bound)")
     args = ap.parse_args()
-    overrides = [f"arrangements.count={args.arrangements}", "backend={name: photo}",
+    overrides = [f"arrangements.count={args.arrangements}", f"backend={{name: {args.backend}}}",
                  "intrinsics={width: 320, height: 240, fx: 286.2, fy: 286.8, cx: 162.4, cy: 120.8}"]
     graph = compile_spec(load_spec(ROOT / "specs/demo.yaml", overrides))
     rows = []
@@ -56,6 +57,8 @@ def main() -> None:
             ("local, 2 workers x 1 thread", "local", 2, 1),
             ("dask LocalCluster, 2 workers x 1 thread", "dask", 2, 1),
         ):
+            if args.backend != "photo" and "2 threads" in label:
+                continue
             out = Path(d) / label.replace(" ", "_").replace(",", "")
             t0 = time.perf_counter()  # a fresh process each: thread counts are read once per process
             r = subprocess.run([sys.executable, "-m", "specsynth.cli", "build", str(spec), "--out", str(out), "--quiet",
@@ -66,7 +69,7 @@ def main() -> None:
             images = len(list(out.glob("bop/*/*/rgb/*")))
             rows.append((label, wall, images, overhead(executor, jobs, ctx)))
     base = rows[0][1]
-    print(f"{graph.n_arrangements} arrangements, {rows[0][2]} images, photo backend at 320x240, {os.cpu_count()} cores")
+    print(f"{graph.n_arrangements} arrangements, {rows[0][2]} images, {args.backend} backend at 320x240, {os.cpu_count()} cores")
     print("| executor | wall s | images / min | speed-up | overhead per job (no-op round trip) |")
     print("|---|---|---|---|---|")
     for label, wall, images, ov in rows:
