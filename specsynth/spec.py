@@ -267,6 +267,9 @@ class CyclesOptions(Strict):
     denoise: bool = Field(False, description="OpenImageDenoise on the beauty pass.")
     adaptive_threshold: float | None = Field(None, gt=0, description="Adaptive sampling noise threshold.")
     samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
+    light_path_budget: bool = Field(
+        True, description="No glossy / transmission bounces when no material in the scene needs them."
+    )
 
 
 class MitsubaOptions(Strict):

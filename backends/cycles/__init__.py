@@ -230,8 +230,10 @@ class CyclesBackend:
 
     def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None) -> RenderResult:
         scene = self._require_scene()
+        budget = self.options.light_path_budget
         ps = path_settings(
-            quality, self.options, has_glossy=scene.has_glossy, has_transmission=scene.has_transmission, clamp=clamp
+            quality, self.options, has_glossy=scene.has_glossy or not budget,
+            has_transmission=scene.has_transmission or not budget, clamp=clamp,
         )
         t0 = time.perf_counter()
         self._set_camera(camera)
