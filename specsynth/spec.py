@@ -116,6 +116,12 @@ class Objects(Strict):
         description="Material overrides keyed by 'default', an obj id ('5') or a built-in name ('duck').",
     )
 
+    @field_validator("materials", mode="before")
+    @classmethod
+    def _ids_as_keys(cls, v):
+        # YAML reads an unquoted obj id key (5:) as an int; ids are written as strings here.
+        return {str(k): m for k, m in v.items()} if isinstance(v, dict) else v
+
     @model_validator(mode="after")
     def _some_objects(self):
         if self.path is None and not self.builtin and not self.meshes:

@@ -142,9 +142,16 @@ def parse_override(item: str) -> tuple[tuple, Any]:
 
 
 def apply_override(data: dict, path: tuple, value: Any) -> None:
+    """Set ``path`` in ``data``. A number is a list index only where the node is a list; in a
+    mapping it is a key (e.g. ``objects.materials.5``), created as a mapping when missing."""
+
+    def key_in(d: dict, part):
+        if part in d:
+            return part
+        return str(part)
+
     cur: Any = data
     for i, part in enumerate(path[:-1]):
-        nxt_is_index = isinstance(path[i + 1], int)
         if isinstance(cur, list):
             if not isinstance(part, int) or part >= len(cur):
                 raise SpecError([Problem(f"--set {_dotted(path)}", None, None, "", f"no list item {part} at {_dotted(path[:i])}")])
@@ -152,9 +159,10 @@ def apply_override(data: dict, path: tuple, value: Any) -> None:
             continue
         if not isinstance(cur, dict):
             raise SpecError([Problem(f"--set {_dotted(path)}", None, None, "", f"{_dotted(path[:i])} is not a mapping")])
-        if part not in cur or cur[part] is None:
-            cur[part] = [] if nxt_is_index else {}
-        cur = cur[part]
+        k = key_in(cur, part)
+        if k not in cur or cur[k] is None:
+            cur[k] = {}
+        cur = cur[k]
     last = path[-1]
     if isinstance(cur, list):
         if not isinstance(last, int) or last > len(cur):
@@ -164,7 +172,7 @@ def apply_override(data: dict, path: tuple, value: Any) -> None:
         else:
             cur[last] = value
     elif isinstance(cur, dict):
-        cur[last] = value
+        cur[key_in(cur, last)] = value
     else:
         raise SpecError([Problem(f"--set {_dotted(path)}", None, None, "", f"{_dotted(path[:-1])} is not a mapping")])
 
@@ -173,25 +181,42 @@ def _dotted(path: tuple) -> str:
     return ".".join(str(p) for p in path)
 
 
+_TYPE_TAGS = {"str", "int", "float", "bool", "list", "dict", "none", "tuple"}
+
+
+def _is_union_tag(part: str) -> bool:
+    """pydantic names union members in error locations (a class, a type, a literal, a tag)."""
+    return (
+        part in {"cycles", "mitsuba", "photo", "plugin"}
+        or part in _TYPE_TAGS
+        or part[:1].isupper()
+        or part.startswith(("function-", "tagged-union", "literal[", "lax-", "json-", "nullable["))
+    )
+
+
+def _lookup(cur: Any, part) -> tuple[bool, Any]:
+    """The child ``part`` of a data node; YAML keys like ``5:`` are ints in data, strings in paths."""
+    if isinstance(cur, dict):
+        for k in (part, str(part)) + ((int(part),) if isinstance(part, str) and part.isdigit() else ()):
+            if k in cur:
+                return True, cur[k]
+    elif isinstance(cur, list) and isinstance(part, int) and part < len(cur):
+        return True, cur[part]
+    return False, None
+
+
 def _problem(file: str, loc: tuple, message: str, positions: dict, overrides: dict, data: Any) -> Problem:
-    # Drop the tags pydantic inserts for unions (e.g. backend -> 'cycles' -> field) so the path
-    # matches the data the user wrote.
+    # Drop the tags pydantic inserts for unions (backend -> 'cycles' -> field, 'BuiltinObject',
+    # 'float', "literal['auto']") so the path matches the data the user wrote.
     path: list = []
     cur = data
     for part in loc:
-        if isinstance(cur, dict) and part in cur:
-            path.append(part)
-            cur = cur[part]
-        elif isinstance(cur, list) and isinstance(part, int) and part < len(cur):
-            path.append(part)
-            cur = cur[part]
-        elif isinstance(cur, dict) and isinstance(part, str) and not _is_field_of_data(part, cur):
-            # an unknown key the user wrote is reported by pydantic as extra_forbidden with the key
-            # itself in loc; a union tag never appears in data: skip it
-            if part in {"cycles", "mitsuba", "photo", "plugin"} or part.startswith(("function-", "tagged-union")):
-                continue
-            path.append(part)
-            cur = None
+        found, child = _lookup(cur, part)
+        if found:
+            path.append(str(part) if isinstance(cur, dict) else part)
+            cur = child
+        elif isinstance(part, str) and _is_union_tag(part):
+            continue
         else:
             path.append(part)
             cur = None
@@ -200,6 +225,10 @@ def _problem(file: str, loc: tuple, message: str, positions: dict, overrides: di
         prefix = tpath[:n]
         if prefix in overrides:
             return Problem(f"--set {_dotted(prefix)}", None, None, _dotted(tpath), message)
+    # An error on a parent of an override (a range whose item was --set) belongs to the override.
+    for opath in overrides:
+        if tuple(str(p) for p in opath[: len(tpath)]) == tuple(str(p) for p in tpath) and len(opath) > len(tpath):
+            return Problem(f"--set {_dotted(opath)}", None, None, _dotted(tpath), message)
     pos = positions.get(tpath + ("__key__",)) or None
     n = len(tpath)
     while pos is None and n >= 0:
@@ -207,10 +236,6 @@ def _problem(file: str, loc: tuple, message: str, positions: dict, overrides: di
         n -= 1
     line, col = pos if pos else (None, None)
     return Problem(file, line, col, _dotted(tpath), message)
-
-
-def _is_field_of_data(part: str, cur: dict) -> bool:
-    return part in cur
 
 
 def _message(err: dict) -> str:
@@ -243,7 +268,16 @@ def load_spec(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> 
     try:
         spec = DatasetSpec.model_validate(data)
     except ValidationError as e:
-        problems = [_problem(file, tuple(err["loc"]), _message(err), positions, over_paths, data) for err in e.errors()]
-        problems.sort(key=lambda pr: (pr.line or 0, pr.col or 0, pr.path))
+        merged: dict[tuple, Problem] = {}
+        for err in e.errors():
+            pr = _problem(file, tuple(err["loc"]), _message(err), positions, over_paths, data)
+            key = (pr.file, pr.line, pr.col, pr.path)
+            if key in merged:  # one mistake, several union members rejecting it: one message
+                prev = merged[key]
+                if pr.message not in prev.message:
+                    merged[key] = Problem(prev.file, prev.line, prev.col, prev.path, f"{prev.message}; or {pr.message}")
+            else:
+                merged[key] = pr
+        problems = sorted(merged.values(), key=lambda pr: (pr.line or 0, pr.col or 0, pr.path))
         raise SpecError(problems) from None
     return LoadedSpec(spec=spec, path=p.resolve(), data=data, positions=positions, overrides=over_paths)

@@ -141,3 +141,22 @@ def test_cli_validate_exit_2_without_traceback(tmp_path, text, fragment):
     assert r.returncode == 2
     assert fragment in r.stderr
     assert "Traceback" not in r.stderr + r.stdout
+
+
+def test_numeric_material_keys_are_located_and_accepted(tmp_path):
+    text = BASE.replace("  builtin: [duck]\n", "  builtin: [duck]\n  materials:\n    default: {roughness: 0.5}\n    5: {roughness: 2.0}\n")
+    f, problems = _problems(tmp_path, text)
+    assert [(p.line, p.path) for p in problems] == [(6, "objects.materials.5.roughness")]
+    f.write_text(text.replace("roughness: 2.0", "roughness: 0.2"))
+    assert set(load_spec(f, ["objects.materials.7.roughness=0.3"]).spec.objects.materials) == {"default", "5", "7"}
+
+
+def test_union_errors_name_the_field_once(tmp_path):
+    _, problems = _problems(tmp_path, BASE + "outputs:\n  depth_scale: nope\n")
+    assert [(p.line, p.path) for p in problems] == [(9, "outputs.depth_scale")]
+    assert "'auto'" in problems[0].message
+
+
+def test_error_on_the_parent_of_an_override_points_at_the_override(tmp_path):
+    _, problems = _problems(tmp_path, BASE + "cameras:\n  distance: [0.5, 1.0]\n", ["cameras.distance.0=2.0"])
+    assert problems[0].file == "--set cameras.distance.0" and problems[0].path == "cameras.distance"
