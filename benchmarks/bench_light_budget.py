@@ -43,13 +43,16 @@ def main() -> None:
         base = load_scene(name, Path.cwd())
         cam = overview_camera(base, intr)
         for label, rs in ((name, base.with_objects(())), (f"{name}, Lambertian", lambertian(base.with_objects(())))):
-            res = {}
-            for budget in (True, False):
+            # The first render after a load is slower (measured): alternate the order, keep the best.
+            res: dict[bool, tuple[float, object]] = {}
+            for budget in (True, False, False, True):
                 backend.options = CyclesOptions(name="cycles", light_path_budget=budget)
                 backend.load(rs)
                 t0 = time.perf_counter()
                 r = backend.render(cam, q, seed=1)
-                res[budget] = (time.perf_counter() - t0, r)
+                dt = time.perf_counter() - t0
+                if budget not in res or dt < res[budget][0]:
+                    res[budget] = (dt, r)
             (t_on, r_on), (t_off, r_off) = res[True], res[False]
             skipped = f"{r_on.stats['glossy_skipped']} / {r_on.stats['transmission_skipped']}"
             print(f"| {label} | {skipped} | {t_on:.2f} | {t_off:.2f} | {100 * (1 - t_on / t_off):.0f} % "

@@ -89,8 +89,9 @@ class BuildSummary:
 
 
 def _samples(graph: JobGraph) -> int:
+    """The backends' rule: an explicit `samples`, else max(AA, diffuse rays, specular rays)."""
     q = graph.spec.quality.resolved()
-    return q.aa * max(1, q.diffuse_rays // max(1, q.aa))
+    return getattr(graph.spec.backend, "samples", None) or max(q.aa, q.diffuse_rays, q.specular_rays)
 
 
 def plan(graph: JobGraph, out: Path) -> dict[str, Any]:
@@ -335,13 +336,15 @@ def _account_savings(summary: BuildSummary, images, cached_render: set[str]) -> 
 
 
 def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:
+    """Job id -> key of every job with a finished result: a failed or never-run job is absent, so
+    a diff against a complete build shows it as removed."""
+    store = Store(out)
+    done = {s: store.keys(s) for s in STAGES}
     jobs: dict[str, dict[str, str]] = {s: {} for s in STAGES}
-    upstream: dict[str, str] = {}
     for a, views, renders in arr_jobs:
-        jobs["arrange"][a.id] = a.key
-        for v, r in zip(views, renders):
-            jobs["view"][v.id] = v.key
-            jobs["render"][r.id] = r.key
+        for j in (a, *views, *renders):
+            if j.key in done[j.stage]:
+                jobs[j.stage][j.id] = j.key
     manifest = {
         "specsynth": metadata.version("specsynth"),
         "spec": str(graph.spec_path),
@@ -366,7 +369,8 @@ def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:
 
 
 def manifest_of(graph: JobGraph) -> dict[str, Any]:
-    """The manifest a build of ``graph`` would write (for diffing specs without building)."""
+    """The manifest a complete build of ``graph`` would write, for diffing specs without building
+    (every camera counted as accepted: which are rejected is known only after the view stage)."""
     jobs: dict[str, dict[str, str]] = {s: {} for s in STAGES}
     for j in graph.jobs():
         jobs[j.stage][j.id] = j.key

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Iterator
 
 from . import keys, seeds
-from .assets import AssetError, object_fingerprints
-from .scenes import scene_fingerprint
+from .assets import AssetError, check_texture, expand_path, file_digest, object_fingerprints
+from .scenes import scene_fingerprint, stage_table
 from .spec import DatasetSpec
 from .yamlio import LoadedSpec, SpecError
 
@@ -99,6 +99,15 @@ def _field(data: dict, dotted: str):
     return cur
 
 
+def _folder_listing_digest(folder: Path, base: Path) -> str:
+    """Names, sizes and mtimes of a folder's files: cheap, and changes when a photo changes."""
+    root = folder if folder.is_absolute() else base / folder
+    if not root.is_dir():
+        return f"missing:{root}"
+    entries = sorted((str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file())
+    return keys.digest(entries)
+
+
 @dataclass(frozen=True)
 class JobGraph:
     spec: DatasetSpec
@@ -175,10 +184,26 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         field = getattr(e, "field", None) or ("objects.path" if "objects.path" in str(e) else "objects")
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))
         asset_hashes = {}
+    # Files the spec names only by path: their bytes, not their names, go into the keys.
+    for key, mat in spec.objects.materials.items():
+        if mat.texture is None:
+            continue
+        field = f"objects.materials.{key}.texture"
+        try:
+            tex = expand_path(mat.texture, loaded.directory, field)
+            asset_hashes[f"texture:{key}"] = file_digest(tex, field)
+            check_texture(tex, field)
+        except AssetError as e:
+            problems.append(loaded.locate(field, str(e)))
     scene_hashes = {}
     for i, ref in enumerate(spec.scenes):
         try:
             scene_hashes[f"scene:{ref.ref}"] = scene_fingerprint(ref, loaded.directory)
+            if ref.stages:
+                known = {st.name for st, _, _ in stage_table(ref, loaded.directory)}
+                unknown = [n for n in ref.stages if n not in known]
+                if unknown:
+                    problems.append(loaded.locate(f"scenes.{i}.stages", f"scene {ref.ref!r} has no stage(s) {unknown}; it has {sorted(known)}"))
         except (AssetError, ValueError, FileNotFoundError) as e:
             problems.append(loaded.locate(f"scenes.{i}.{'name' if ref.name else 'file'}", str(e)))
     if problems:
@@ -193,6 +218,9 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     stage_inputs["view"]["annotator"] = f"pyrender {_dist_version('pyrender')}"
     backend = backend_fingerprint(spec.backend.name)
     stage_inputs["render"]["backend"] = backend
+    backgrounds = getattr(spec.backend, "backgrounds", "builtin")
+    if backgrounds != "builtin":
+        stage_inputs["render"]["backgrounds"] = _folder_listing_digest(Path(backgrounds), loaded.directory)
     stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
     return JobGraph(
         spec=spec,

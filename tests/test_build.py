@@ -176,3 +176,40 @@ def test_summary_accounts_for_what_was_skipped(built, spec_file):
     assert first.saved["cache"] == 0.0
     again = build(graph(spec_file), out, jobs=1)
     assert again.saved["cache"] > 0  # every render came from the store
+
+
+def test_texture_bytes_are_part_of_the_keys(tmp_path):
+    from PIL import Image
+
+    tex = tmp_path / "tex.png"
+    Image.new("RGB", (8, 8), (0, 0, 0)).save(tex)
+    f = tmp_path / "t.yaml"
+    f.write_text(SPEC.replace("  builtin: [duck, mug, jenga]\n", "  builtin: [duck]\n  materials:\n    duck: {texture: tex.png}\n"))
+    before = graph(f).stage_digests["arrange"]
+    Image.new("RGB", (8, 8), (255, 0, 0)).save(tex)
+    assert graph(f).stage_digests["arrange"] != before
+
+
+def test_unknown_stage_and_missing_texture_fail_validation_located(tmp_path):
+    from specsynth.yamlio import SpecError
+
+    f = tmp_path / "t.yaml"
+    f.write_text(SPEC.replace("  - name: room\n", "  - name: room\n    stages: [table, nope]\n")
+                 .replace("  builtin: [duck, mug, jenga]\n", "  builtin: [duck]\n  materials:\n    duck: {texture: missing.png}\n"))
+    with pytest.raises(SpecError) as ei:
+        graph(f)
+    got = {(p.path, p.line) for p in ei.value.problems}
+    assert ("objects.materials.duck.texture", 8) in got and ("scenes.0.stages", 11) in got, got
+
+
+def test_manifest_lists_only_finished_jobs(tmp_path):
+    f = tmp_path / "t.yaml"
+    f.write_text(SPEC)
+    out = tmp_path / "out"
+    g = graph(f)
+    build(g, out, jobs=1, until="view")  # no render ran
+    from specsynth.build import write_manifest
+
+    write_manifest(g, out, [g.arrangement_jobs(a) for a in range(g.n_arrangements)])
+    m = read_manifest(out)
+    assert len(m["jobs"]["arrange"]) == 2 and len(m["jobs"]["view"]) == 6 and m["jobs"]["render"] == {}
