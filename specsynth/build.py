@@ -189,6 +189,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         store.clean_tmp()
         threads = threads or max(1, (os.cpu_count() or 1) // max(1, jobs))
         ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads)
+        wkey = str(ctx.out)  # which worker state a task uses (one Dask worker may serve several builds)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         window = 2 * max(1, getattr(ex, "workers", jobs))
 
@@ -196,10 +197,10 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
             _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split)
 
         def split_group(fn, args):
-            key, group = args
+            wk, key, group = args
             if len(group) < 2:
                 return None
-            return [(fn, (key, [j]), (_group_id(j), 1)) for j in group]
+            return [(fn, (wk, key, [j]), (_group_id(j), 1)) for j in group]
 
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
 
@@ -226,7 +227,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                 todo = [a for a, _, _ in arr_jobs if not store.has("arrange", a.key)]
                 st.cached = st.total - len(todo)
                 task = prog.add_task("arrange", total=st.total, completed=st.cached)
-                calls = [(task_arrange, (a,), (a.id, 1)) for a in todo]
+                calls = [(task_arrange, (wkey, a), (a.id, 1)) for a in todo]
                 run(calls, *handlers("arrange", prog, task))
                 st.seconds = time.perf_counter() - t0
 
@@ -243,7 +244,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sv.cached += len(views) - len(todo_v)
                     prog.advance(task, len(views) - len(todo_v))
                     if todo_v:
-                        calls.append((task_views, (a.key, todo_v), (a.id, len(todo_v))))
+                        calls.append((task_views, (wkey, a.key, todo_v), (a.id, len(todo_v))))
 
                 run(calls, *handlers("view", prog, task), split_group)
                 sv.seconds = time.perf_counter() - t0
@@ -277,7 +278,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     if todo_r:
                         pending.append((a.key, todo_r))
                 task = prog.add_task("render", total=sr.total, completed=sr.cached)
-                calls = [(task_renders, (key, pairs), (_group_id(pairs[0]), len(pairs))) for key, pairs in pending]
+                calls = [(task_renders, (wkey, key, pairs), (_group_id(pairs[0]), len(pairs))) for key, pairs in pending]
 
                 run(calls, *handlers("render", prog, task), split_group)
                 sr.seconds = time.perf_counter() - t0

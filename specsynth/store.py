@@ -42,7 +42,9 @@ class Store:
         return {p.name for d in base.iterdir() if d.is_dir() for p in d.iterdir() if (p / RECORD).is_file()}
 
     def begin(self) -> Path:
-        d = self.tmp / uuid.uuid4().hex
+        # The owner's pid in the name: a resumed build must not clean up after a worker of a
+        # killed build that is still finishing its job (it commits whole folders or nothing).
+        d = self.tmp / f"{os.getpid()}-{uuid.uuid4().hex}"
         d.mkdir(parents=True)
         return d
 
@@ -63,8 +65,25 @@ class Store:
         return self.commit(stage, key, self.begin(), record)
 
     def clean_tmp(self) -> None:
-        """Remove leftovers of killed jobs; only safe while holding the build lock."""
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        """Remove leftovers of killed jobs (holding the build lock); folders of processes still
+        alive on this machine are left to them. Workers on other hosts are not visible here."""
+        if not self.tmp.is_dir():
+            return
+        for d in self.tmp.iterdir():
+            pid = d.name.split("-", 1)[0]
+            if pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid)):
+                continue
+            shutil.rmtree(d, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def write_json(path: Path, obj: Any, *, indent: int | None = 2) -> None:

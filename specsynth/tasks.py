@@ -261,34 +261,44 @@ class Worker:
         return out
 
 
-# One Worker per process, created by the pool initializer: the warm renderer must outlive a job.
-_worker: Worker | None = None
+# Worker state per output folder, created by the pool initializer (or a Dask WorkerPlugin): the
+# warm renderer must outlive a job, and one Dask worker process may serve several builds at once.
+_workers: dict[str, Worker] = {}
 
 
 def init_worker(ctx: BuildContext) -> None:
-    global _worker
     # Renderers must not oversubscribe the cores the pool already splits between workers: OpenMP
     # (Blender, OIDN) and Mesa's llvmpipe (annotation engine, photo backend) read these before
     # their first context is created in this process.
     if ctx.threads:
         os.environ["OMP_NUM_THREADS"] = str(ctx.threads)
         os.environ["LP_NUM_THREADS"] = str(ctx.threads)
-    _worker = Worker(ctx)
+    old = _workers.get(str(ctx.out))
+    if old is not None:
+        old.close()
+    _workers[str(ctx.out)] = Worker(ctx)
 
 
-def current_worker() -> Worker:
-    if _worker is None:
-        raise RuntimeError("worker not initialised")
-    return _worker
+def current_worker(out: str) -> Worker:
+    try:
+        return _workers[str(out)]
+    except KeyError:
+        raise RuntimeError(f"worker not initialised for {out}") from None
 
 
-def task_arrange(job: Job):
-    return current_worker().run_arrange(job)
+def close_worker(out: str) -> None:
+    w = _workers.pop(str(out), None)
+    if w is not None:
+        w.close()
 
 
-def task_views(arrange_key: str, jobs: list[Job]):
-    return current_worker().run_views(arrange_key, jobs)
+def task_arrange(out: str, job: Job):
+    return current_worker(out).run_arrange(job)
 
 
-def task_renders(arrange_key: str, pairs: list[tuple[Job, Job]]):
-    return current_worker().run_renders(arrange_key, pairs)
+def task_views(out: str, arrange_key: str, jobs: list[Job]):
+    return current_worker(out).run_views(arrange_key, jobs)
+
+
+def task_renders(out: str, arrange_key: str, pairs: list[tuple[Job, Job]]):
+    return current_worker(out).run_renders(arrange_key, pairs)

@@ -69,3 +69,22 @@ def test_store_commit_is_atomic_and_idempotent(tmp_path):
 def test_import_contracts_hold():
     r = subprocess.run([str(Path(sys.executable).parent / "lint-imports")], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_clean_tmp_spares_folders_of_live_processes(tmp_path):
+    """A resumed build must not delete the temp folder of a killed build's worker still finishing."""
+    import subprocess as sp
+
+    store = Store(tmp_path)
+    child = sp.Popen(["sleep", "30"])
+    try:
+        live = store.tmp / f"{child.pid}-abc"
+        dead = store.tmp / "999999999-def"
+        own = store.begin()
+        for d in (live, dead):
+            d.mkdir(parents=True)
+        store.clean_tmp()
+        assert live.is_dir() and not dead.exists() and not own.exists()
+    finally:
+        child.kill()
+        child.wait()

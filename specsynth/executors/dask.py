@@ -8,6 +8,8 @@ of ``--jobs`` single-threaded worker processes is started (useful for tests and 
 
 from __future__ import annotations
 
+import hashlib
+
 from .. import tasks
 
 
@@ -15,20 +17,17 @@ def _plugin_class():
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class WarmWorker(WorkerPlugin):
-        name = "specsynth-warm"
-
         def __init__(self, ctx: tasks.BuildContext):
             self.ctx = ctx
+            # One plugin per output folder: builds sharing a cluster do not replace each other's.
+            self.name = f"specsynth-warm-{hashlib.sha256(str(ctx.out).encode()).hexdigest()[:12]}"
 
         def setup(self, worker):
             # Dask sets OMP_NUM_THREADS=1 in workers; renderers get an explicit count instead.
             tasks.init_worker(self.ctx)
 
         def teardown(self, worker):
-            try:
-                tasks.current_worker().close()
-            except RuntimeError:
-                pass
+            tasks.close_worker(str(self.ctx.out))
 
     return WarmWorker
 
@@ -46,7 +45,8 @@ class DaskExecutor:
             self._cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=40)
             self.client = Client(self._cluster)
-        self.client.register_plugin(_plugin_class()(ctx))
+        self._plugin = _plugin_class()(ctx)
+        self.client.register_plugin(self._plugin)
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})) or jobs)
 
     def submit(self, fn, *args):
@@ -54,6 +54,11 @@ class DaskExecutor:
         return self.client.submit(fn, *args, pure=False)
 
     def shutdown(self) -> None:
+        if self._cluster is None:  # a shared cluster: leave its workers, drop this build's state
+            try:
+                self.client.unregister_worker_plugin(self._plugin.name)
+            except Exception:  # older distributed, or already gone: the state is small
+                pass
         self.client.close()
         if self._cluster is not None:
             self._cluster.close()

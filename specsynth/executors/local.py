@@ -52,4 +52,4 @@ class LocalExecutor:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
         else:
-            tasks.current_worker().close()
+            tasks.close_worker(str(self._ctx.out))
