@@ -69,7 +69,13 @@ class Worker:
     def backend(self):
         if self._backend is None:
             cls = load_backend(self.spec.backend.name)
-            self._backend = cls(self.spec.backend, threads=self.ctx.threads)
+            options = self.spec.backend
+            folder = getattr(options, "backgrounds", "builtin")
+            if folder != "builtin" and not Path(folder).expanduser().is_absolute():
+                # Paths in a spec are relative to the spec file (as the compiler hashes them),
+                # never to wherever the build was started.
+                options = options.model_copy(update={"backgrounds": str(self.ctx.spec_dir / folder)})
+            self._backend = cls(options, threads=self.ctx.threads)
         return self._backend
 
     def close(self) -> None:

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from specsynth.build import build, diff, plan, read_manifest
@@ -213,3 +214,18 @@ def test_manifest_lists_only_finished_jobs(tmp_path):
     write_manifest(g, out, [g.arrangement_jobs(a) for a in range(g.n_arrangements)])
     m = read_manifest(out)
     assert len(m["jobs"]["arrange"]) == 2 and len(m["jobs"]["view"]) == 6 and m["jobs"]["render"] == {}
+
+
+def test_photo_background_folder_is_relative_to_the_spec(tmp_path):
+    from PIL import Image
+
+    (tmp_path / "photos").mkdir()
+    Image.new("RGB", (64, 48), (10, 200, 30)).save(tmp_path / "photos" / "green.png")
+    f = tmp_path / "t.yaml"
+    f.write_text(SPEC.replace("  name: photo\n", "  name: photo\n  backgrounds: photos\n").replace("count: 2", "count: 1"))
+    r = subprocess.run([sys.executable, "-m", "specsynth.cli", "build", str(f), "--out", str(tmp_path / "out"), "--quiet"],
+                       capture_output=True, text=True, cwd="/")
+    assert r.returncode == 0, r.stdout + r.stderr
+    rgb = next((tmp_path / "out" / "bop").rglob("rgb/*.png"))
+    corner = np.asarray(Image.open(rgb))[:4, :4].reshape(-1, 3).mean(0)
+    assert corner[1] > corner[0] + 50  # the folder's green photo, found from cwd=/
