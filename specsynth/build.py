@@ -7,10 +7,13 @@ finished result in the store, then merges the records into BOP / Parquet / COCO 
 from __future__ import annotations
 
 import fcntl
+import heapq
+import itertools
 import json
 import os
+import queue
 import time
-from concurrent.futures import Future
+from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -81,6 +84,7 @@ class BuildSummary:
     # What skipping saved, in seconds (estimates from this build's own measured render times).
     saved: dict[str, float] = field(default_factory=dict)
     glossy_bounces_skipped: int = 0  # renders whose scene had no glossy material
+    wall_seconds: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         d = self.__dict__.copy()
@@ -134,53 +138,98 @@ def _is_crash(e: BaseException) -> bool:
     return type(e).__name__ in ("BrokenProcessPool", "KilledWorker")
 
 
-def _run(ex, calls: list[tuple[Callable, tuple, Any]], on_done: Callable[[Any, Any], None],
-         on_error: Callable[[Any, BaseException], None], *, window: int, retries: int,
-         split: Callable[[Callable, tuple], list[tuple[Callable, tuple, Any]] | None] = lambda fn, args: None) -> None:
-    """Submit calls with at most ``window`` in flight; retry a failed call up to ``retries`` times.
+@dataclass
+class Call:
+    """One task submission: ``n`` jobs of ``stage`` for arrangement ``arr``."""
 
-    A retry is safe because a job counts only once its record is in the store: a re-submitted
-    group re-runs exactly the jobs that have no finished result. When a worker crashes, every
-    call in flight fails with it; those are re-run one at a time so that only the call that
-    really crashes uses up its retries. A group that still fails is split into single jobs
-    (``split``) so one bad job does not take its whole arrangement down.
+    fn: Callable
+    args: tuple
+    stage: str
+    ident: str
+    n: int
+    arr: int
+    tries: int = 0
+
+    @property
+    def priority(self) -> tuple[int, int]:
+        # Later stages first, then older arrangements: an arrangement flows through to its images
+        # while other workers are still arranging, so no stage waits for the slowest job of another.
+        return (STAGES[::-1].index(self.stage), self.arr)
+
+
+def _run(ex, calls: list[Call], on_done: Callable[[Call, Any], list[Call]],
+         on_error: Callable[[Call, BaseException], list[Call]], *, window: int, retries: int,
+         split: Callable[[Call], list[Call] | None] = lambda c: None) -> None:
+    """Submit calls with at most ``window`` in flight, in priority order, taking results as they
+    finish; ``on_done`` / ``on_error`` return follow-up calls (the next stage of an arrangement).
+
+    A failed call is retried up to ``retries`` times. A retry is safe because a job counts only
+    once its record is in the store: a re-submitted group re-runs exactly the jobs that have no
+    finished result. When a worker crashes, every call in flight fails with it; those are re-run
+    one at a time so that only the call that really crashes uses up its retries. A group that
+    still fails is split into single jobs (``split``) so one bad job does not take its whole
+    arrangement down.
     """
-    queue = [(fn, args, meta, 0) for fn, args, meta in reversed(calls)]
-    suspects: list[tuple] = []
-    inflight: list[tuple[Future, tuple, bool]] = []
-    while queue or suspects or inflight:
+    from .tasks import timed
+
+    order = itertools.count()
+    heap: list[tuple[tuple[int, int], int, Call]] = []
+    suspects: deque[Call] = deque()
+    inflight: dict[int, tuple[Call, bool]] = {}
+    finished: queue.SimpleQueue = queue.SimpleQueue()
+
+    def push(cs):
+        for c in cs or ():
+            heapq.heappush(heap, (c.priority, next(order), c))
+
+    def submit(c: Call, isolated: bool) -> None:
+        token = next(order)
+        inflight[token] = (c, isolated)
+        fut = ex.submit(timed, c.fn, *c.args)
+        # Both concurrent.futures and Dask futures call back from their own thread: only hand over.
+        fut.add_done_callback(lambda f, token=token: finished.put((token, f)))
+
+    push(calls)
+    while heap or suspects or inflight:
         if suspects:
             if not inflight:
-                item = suspects.pop(0)
-                inflight.append((ex.submit(item[0], *item[1]), item, True))
+                submit(suspects.popleft(), True)
         else:
-            while queue and len(inflight) < window:
-                item = queue.pop()
-                inflight.append((ex.submit(item[0], *item[1]), item, False))
-        fut, item, isolated = inflight.pop(0)
+            while heap and len(inflight) < window:
+                submit(heapq.heappop(heap)[2], False)
+        token, fut = finished.get()
+        c, isolated = inflight.pop(token)
         try:
             res = fut.result()
         except Exception as e:  # one failed job must not stop the build
-            fn, args, meta, tries = item
             if _is_crash(e) and not isolated:
-                suspects.append(item)
-            elif tries < retries:
-                (suspects if _is_crash(e) else queue).append((fn, args, meta, tries + 1))
+                suspects.append(c)
+            elif c.tries < retries:
+                c.tries += 1
+                suspects.append(c) if _is_crash(e) else push([c])
             else:
-                parts = split(fn, args)
-                if parts:
-                    queue.extend((f, a, m, 0) for f, a, m in reversed(parts))
-                else:
-                    on_error(meta, e)
+                parts = split(c)
+                push(parts) if parts else push(on_error(c, e))
             continue
-        on_done(item[2], res)
+        push(on_done(c, res))
+
+
+# Renders per call: one scene load serves up to this many cameras of an arrangement, and the
+# end of a build is not left to one worker with a long group while the others idle.
+RENDER_CHUNK = 8
 
 
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
           console=None, retries: int = 2, until: str = "merge", threads: int | None = None) -> BuildSummary:
-    """Run the graph; ``until="view"`` stops after the camera stage (used by ``bench``)."""
+    """Run the graph; ``until="view"`` stops after the camera stage (used by ``bench``).
+
+    Stages are pipelined per arrangement: its cameras are sampled as soon as it has settled, and
+    its images rendered as soon as its cameras are known. Stage seconds in the summary are
+    worker-seconds (summed over workers); ``wall_seconds`` is the whole build.
+    """
     from .tasks import BuildContext, task_arrange, task_renders, task_views
 
+    t_build = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     summary = BuildSummary(out=str(out), backend=graph.backend)
@@ -192,75 +241,35 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         wkey = str(ctx.out)  # which worker state a task uses (one Dask worker may serve several builds)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         window = 2 * max(1, getattr(ex, "workers", jobs))
-
-        def run(calls, on_done, on_error, split=lambda fn, args: None):
-            _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split)
-
-        def split_group(fn, args):
-            wk, key, group = args
-            if len(group) < 2:
-                return None
-            return [(fn, (wk, key, [j]), (_group_id(j), 1)) for j in group]
-
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
-
-        def handlers(stage: str, prog, task):
-            """Progress and failure bookkeeping; ``meta`` is (job or group id, number of jobs)."""
-            st = summary.stages[stage]
-
-            def done(meta, res):
-                st.ran += meta[1]
-                prog.advance(task, meta[1])
-
-            def failed(meta, e):
-                st.failed += meta[1]
-                summary.failures.append({"stage": stage, "job": meta[0], "error": f"{type(e).__name__}: {e}"})
-
-            return done, failed
+        st, sv, sr = (summary.stages[s] for s in STAGES)
+        views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
+        cached_render: set[str] = set()
 
         try:
             with _progress(console) as prog:
-                # -------------------------------------------------- arrange
-                t0 = time.perf_counter()
-                st = summary.stages["arrange"]
-                st.total = len(arr_jobs)
-                todo = [a for a, _, _ in arr_jobs if not store.has("arrange", a.key)]
-                st.cached = st.total - len(todo)
-                task = prog.add_task("arrange", total=st.total, completed=st.cached)
-                calls = [(task_arrange, (wkey, a), (a.id, 1)) for a in todo]
-                run(calls, *handlers("arrange", prog, task))
-                st.seconds = time.perf_counter() - t0
+                bars = {s: prog.add_task(s, total=0) for s in STAGES}
 
-                # -------------------------------------------------- view
-                t0 = time.perf_counter()
-                sv = summary.stages["view"]
-                task = prog.add_task("view", total=graph.n_views)
-                calls = []
-                for a, views, _ in arr_jobs:
-                    sv.total += len(views)
-                    if not store.has("arrange", a.key):
-                        continue
-                    todo_v = [v for v in views if not store.has("view", v.key)]
-                    sv.cached += len(views) - len(todo_v)
-                    prog.advance(task, len(views) - len(todo_v))
-                    if todo_v:
-                        calls.append((task_views, (wkey, a.key, todo_v), (a.id, len(todo_v))))
+                def advance(stage: str, n: int) -> None:
+                    prog.advance(bars[stage], n)
 
-                run(calls, *handlers("view", prog, task), split_group)
-                sv.seconds = time.perf_counter() - t0
+                def view_calls(i: int) -> list[Call]:
+                    a, views, _ = arr_jobs[i]
+                    todo = [v for v in views if not store.has("view", v.key)]
+                    sv.cached += len(views) - len(todo)
+                    advance("view", len(views) - len(todo))
+                    if not todo:
+                        return render_calls(i)
+                    views_left[i] = len(todo)
+                    return [Call(task_views, (wkey, a.key, todo), "view", a.id, len(todo), i)]
 
-                if until == "view":
-                    return summary
-
-                # -------------------------------------------------- render
-                t0 = time.perf_counter()
-                sr = summary.stages["render"]
-                pending: list[tuple[str, list]] = []
-                cached_render: set[str] = set()
-                for a, views, renders in arr_jobs:
-                    todo_r = []
+                def render_calls(i: int) -> list[Call]:
+                    if until == "view":
+                        return []
+                    a, views, renders = arr_jobs[i]
+                    todo, cached = [], 0
                     for v, r in zip(views, renders):
-                        if not store.has("view", v.key):
+                        if not store.has("view", v.key):  # its view job failed
                             continue
                         vrec = store.load("view", v.key)
                         summary.cameras_rejected += vrec["tries"] - (1 if vrec["accepted"] else 0)
@@ -271,19 +280,58 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                         summary.views_accepted += 1
                         sr.total += 1
                         if store.has("render", r.key):
-                            sr.cached += 1
+                            cached += 1
                             cached_render.add(r.key)
                         else:
-                            todo_r.append((v, r))
-                    if todo_r:
-                        pending.append((a.key, todo_r))
-                task = prog.add_task("render", total=sr.total, completed=sr.cached)
-                calls = [(task_renders, (wkey, key, pairs), (_group_id(pairs[0]), len(pairs))) for key, pairs in pending]
+                            todo.append((v, r))
+                    sr.cached += cached
+                    prog.update(bars["render"], total=sr.total)
+                    advance("render", cached)
+                    chunks = [todo[k:k + RENDER_CHUNK] for k in range(0, len(todo), RENDER_CHUNK)]
+                    return [Call(task_renders, (wkey, a.key, c), "render", _group_id(c[0]), len(c), i) for c in chunks]
 
-                run(calls, *handlers("render", prog, task), split_group)
-                sr.seconds = time.perf_counter() - t0
+                def view_resolved(i: int, n: int) -> list[Call]:
+                    views_left[i] -= n
+                    return render_calls(i) if views_left[i] == 0 else []
+
+                def on_done(c: Call, res) -> list[Call]:
+                    seconds, _ = res
+                    stage = summary.stages[c.stage]
+                    stage.ran += c.n
+                    stage.seconds += seconds
+                    advance(c.stage, c.n)
+                    if c.stage == "arrange":
+                        return view_calls(c.arr)
+                    return view_resolved(c.arr, c.n) if c.stage == "view" else []
+
+                def on_error(c: Call, e: BaseException) -> list[Call]:
+                    summary.stages[c.stage].failed += c.n
+                    summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}"})
+                    return view_resolved(c.arr, c.n) if c.stage == "view" else []
+
+                def split(c: Call) -> list[Call] | None:
+                    fn, (wk, key, group) = c.fn, c.args
+                    if c.stage == "arrange" or len(group) < 2:
+                        return None
+                    return [Call(fn, (wk, key, [j]), c.stage, _group_id(j), 1, c.arr) for j in group]
+
+                st.total, sv.total = len(arr_jobs), graph.n_views
+                prog.update(bars["arrange"], total=st.total)
+                prog.update(bars["view"], total=sv.total)
+                calls: list[Call] = []
+                for i, (a, _, _) in enumerate(arr_jobs):
+                    if store.has("arrange", a.key):
+                        st.cached += 1
+                        advance("arrange", 1)
+                        calls += view_calls(i)
+                    else:
+                        calls.append(Call(task_arrange, (wkey, a), "arrange", a.id, 1, i))
+                _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split)
         finally:
             ex.shutdown()
+        summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))
+        if until == "view":
+            return summary
 
         # ------------------------------------------------------ merge
         t0 = time.perf_counter()
@@ -306,6 +354,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         write_outputs(out, graph.spec, images, models)
         write_manifest(graph, out, arr_jobs)
         summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
+        summary.wall_seconds = time.perf_counter() - t_build
         write_json(out / "failures.json", summary.failures)
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary

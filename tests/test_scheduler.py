@@ -1,0 +1,91 @@
+"""The build's scheduler: pipelined stages, priority, completion order, retries and splits."""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+
+from specsynth.build import Call, _run
+
+
+class Inline:
+    """The executor protocol run in the calling thread (what ``--jobs 1`` does)."""
+
+    workers = 1
+
+    def submit(self, fn, *args) -> Future:
+        f: Future = Future()
+        try:
+            f.set_result(fn(*args))
+        except Exception as e:
+            f.set_exception(e)
+        return f
+
+
+def _pipeline(ex, n_arr: int, log: list, work=lambda stage, arr: None, window: int = 2):
+    def job(stage, arr):
+        work(stage, arr)
+        log.append((stage, arr))
+        return stage
+
+    def on_done(c: Call, res):
+        nxt = {"arrange": "view", "view": "render"}.get(c.stage)
+        return [Call(job, (nxt, c.arr), nxt, f"{nxt}{c.arr}", 1, c.arr)] if nxt else []
+
+    calls = [Call(job, ("arrange", i), "arrange", f"a{i}", 1, i) for i in range(n_arr)]
+    _run(ex, calls, on_done, lambda c, e: [], window=window, retries=0)
+
+
+def test_an_arrangement_flows_to_its_renders_before_later_arrangements_are_arranged():
+    log: list = []
+    _pipeline(Inline(), 4, log)
+    assert sorted(log) == sorted((s, i) for s in ("arrange", "view", "render") for i in range(4))
+    # window 2: arr 0 and 1 are submitted first; then arr 0's view and render jump the queue
+    assert log.index(("render", 0)) < log.index(("arrange", 2))
+    assert log.index(("render", 1)) < log.index(("arrange", 3))
+
+
+def test_results_are_taken_as_they_finish_not_in_submission_order():
+    """A long arrange of arrangement 0 must not hold back arrangement 1's later stages."""
+    log: list = []
+    gate = threading.Event()
+
+    def work(stage, arr):
+        if (stage, arr) == ("arrange", 0):
+            gate.wait(10)
+
+    def release_when_1_rendered(stage, arr):
+        work(stage, arr)
+        if (stage, arr) == ("render", 1):
+            gate.set()
+
+    with ThreadPoolExecutor(2) as ex:
+        t0 = time.perf_counter()
+        _pipeline(ex, 2, log, release_when_1_rendered, window=4)
+    assert time.perf_counter() - t0 < 10, "arrangement 1 waited behind arrangement 0"
+    assert log.index(("render", 1)) < log.index(("arrange", 0))
+
+
+def test_retry_then_split_then_report():
+    tries: dict = {}
+    failed, done = [], []
+
+    def group(ids):
+        for i in ids:
+            tries[i] = tries.get(i, 0) + 1
+            if i == "bad":
+                raise ValueError("bad job")
+        return ids
+
+    c = Call(group, (["a", "bad", "b"],), "view", "g", 3, 0)
+
+    def split(c):
+        (ids,) = c.args
+        return None if len(ids) < 2 else [Call(group, ([i],), c.stage, i, 1, c.arr) for i in ids]
+
+    _run(Inline(), [c], lambda c, r: done.append(r[1]) or [], lambda c, e: failed.append((c.ident, str(e))) or [],
+         window=2, retries=1, split=split)
+    assert failed == [("bad", "bad job")]
+    assert sorted(map(tuple, done)) == [("a",), ("b",)]
+    assert tries["bad"] == 2 + 2  # the group twice (one retry), then alone twice
