@@ -20,7 +20,7 @@ from .backend_api import PluginNotFound, available_backends, load_backend
 from .build import build
 from .compiler import JobGraph
 from .records import ArrangementRecord, ViewRecord
-from .spec import QualityPreset
+from .spec import CyclesOptions, QualityPreset
 from .store import Store
 
 
@@ -74,8 +74,10 @@ def ssim8(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _views(graph: JobGraph, out: Path, n: int):
-    """Arrangements and the first n accepted views, built (and cached) in ``out``."""
-    build(graph, out, jobs=1, until="view")
+    """Arrangements and the first n accepted views, built (and cached) in ``out``; and what the
+    camera stage and its cache saved (see ``camera_savings``)."""
+    first = _timed_view_build(graph, out)
+    cached = _timed_view_build(graph, out)  # everything is in the store now: what a rebuild costs
     store = Store(out)
     picked = []
     for arr in range(graph.n_arrangements):
@@ -89,8 +91,78 @@ def _views(graph: JobGraph, out: Path, n: int):
                 if vrec.accepted:
                     picked.append((arec, vrec, v.seed))
             if len(picked) >= n:
-                return picked
-    return picked
+                return picked, (first, cached)
+    return picked, (first, cached)
+
+
+def _timed_view_build(graph: JobGraph, out: Path) -> dict:
+    """Build arrangements and cameras; the first real run's numbers are kept next to the store, so
+    a later bench into the same folder still knows what the cached jobs cost."""
+    import json
+
+    t0 = time.perf_counter()
+    s = build(graph, out, jobs=1, until="view")
+    wall = time.perf_counter() - t0
+    ran = s.stages["arrange"].ran + s.stages["view"].ran
+    info = {"wall": wall, "jobs": s.stages["arrange"].total + s.stages["view"].total, "ran": ran,
+            "worker_seconds": s.stages["arrange"].seconds + s.stages["view"].seconds,
+            "cameras": s.stages["view"].total, "rejected": s.cameras_rejected, "rejected_seconds": s.rejected_seconds}
+    meta = Path(out) / ".specsynth" / "bench_views.json"
+    if ran:
+        meta.write_text(json.dumps(info) + "\n")
+    elif meta.exists():
+        return {**json.loads(meta.read_text()), "wall": wall, "ran": 0, "cached_wall": wall}
+    return info
+
+
+@dataclass
+class Saving:
+    backend: str
+    what: str
+    seconds: float  # saved, per the unit in ``per``
+    per: str
+    how: str  # what was measured
+
+
+def camera_savings(backend: str, rows: list[Row], level: str, cams: tuple[dict, dict], load_s: float,
+                   per_arrangement: int) -> list[Saving]:
+    """Skipping, priced with this bench's own measurements on this backend."""
+    first, cached = cams
+    render = next((r.seconds for r in rows if r.backend == backend and r.setting == level), float("nan"))
+    out = [
+        Saving(backend, "visibility pre-check", first["rejected"] * render - first["rejected_seconds"], "view build",
+               f"{first['rejected']} sampled cameras rejected for {first['cameras']} view jobs "
+               f"({first['rejected_seconds']:.2f} s of checks) x {render:.2f} s per '{level}' render"),
+        Saving(backend, "scene loaded once per arrangement", (per_arrangement - 1) * load_s, "arrangement",
+               f"({per_arrangement} cameras - 1) x {load_s:.2f} s scene load (median)"),
+    ]
+    if cached["ran"] == 0:
+        out.append(Saving(backend, "cache", first["worker_seconds"] - cached["wall"], "rebuild of the views",
+                          f"{first['jobs']} arrange/view jobs: {first['worker_seconds']:.2f} s first run, "
+                          f"{cached['wall']:.2f} s rebuild (all cached)"))
+    return out
+
+
+def light_budget_saving(cls, base_opts: dict, spec, picked, worker, preset, repeats: int) -> Saving | None:
+    """Cycles only: the same views with and without the scene-derived light-path budget."""
+    times: dict[bool, list[float]] = {True: [], False: []}
+    skipped = 0
+    for arec, vrec, seed in picked:
+        scene = worker.render_scene(arec)
+        cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
+        for budget in (True, False, False, True) * max(1, repeats):  # alternate: the first render after a load is slower
+            backend = cls(CyclesOptions.model_validate({**base_opts, "light_path_budget": budget}), threads=0)
+            backend.load(scene)
+            backend.render(cam, preset, seed, clamp=spec.quality.clamp)  # warm
+            t0 = time.perf_counter()
+            res = backend.render(cam, preset, seed, clamp=spec.quality.clamp)
+            times[budget].append(time.perf_counter() - t0)
+            skipped += bool(budget and res.stats.get("glossy_skipped"))
+            backend.close()
+    on, off = statistics.median(times[True]), statistics.median(times[False])
+    return Saving("cycles", "light-path budget", off - on, "render",
+                  f"median {on:.2f} s with vs {off:.2f} s without, {len(picked)} view(s); glossy bounces "
+                  f"skipped in {skipped} of {len(times[True])} budgeted renders")
 
 
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
@@ -105,11 +177,12 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         "width": max(8, round(intr.width * scale)), "height": max(8, round(intr.height * scale)),
         "fx": intr.fx * scale, "fy": intr.fy * scale, "cx": (intr.cx + 0.5) * scale - 0.5, "cy": (intr.cy + 0.5) * scale - 0.5,
     })
-    picked = _views(graph, out, n_views)
+    picked, cams = _views(graph, out, n_views)
     if not picked:
         raise RuntimeError("no accepted view to benchmark; widen the camera ranges")
     names = backends or [b for b in available_backends() if b != "photo"]
     rows: list[Row] = []
+    savings: list[Saving] = []
     for name in names:
         try:
             cls = load_backend(name)
@@ -132,11 +205,13 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * f,
                                           "diffuse_rays": preset.diffuse_rays * f, "specular_rays": preset.specular_rays * f})
             backend = cls(type(spec.backend).model_validate(opts) if spec.backend.name == name else opts, threads=0)
-            times, errs = [], []
+            times, errs, loads = [], [], []
             samples = 0
             for i, (arec, vrec, seed) in enumerate(picked):
                 scene = worker.render_scene(arec)
+                t0 = time.perf_counter()
                 backend.load(scene)
+                loads.append(time.perf_counter() - t0)
                 cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
                 ts = []
                 for r in range(repeats if not st.reference else 1):
@@ -163,9 +238,14 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             if console:
                 r = rows[-1]
                 console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
+        level = spec.quality.level
+        savings += camera_savings(name, rows, level, cams, statistics.median(loads), spec.cameras.per_arrangement)
+        if name == "cycles":
+            preset = spec.quality.model_copy(update={"level": level}).resolved()
+            savings.append(light_budget_saving(cls, base_opts, spec, picked, worker, preset, repeats))
         worker.close()
-    write_report(rows, out, graph, n_views=len(picked), scale=scale, ref_factor=ref_factor)
-    return rows
+    write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
+    return rows, savings
 
 
 def equal_error_speedups(rows: list[Row]) -> dict[str, dict]:
@@ -183,7 +263,7 @@ def equal_error_speedups(rows: list[Row]) -> dict[str, dict]:
     return out
 
 
-def write_report(rows: list[Row], out: Path, graph: JobGraph, **meta) -> None:
+def write_report(rows: list[Row], out: Path, graph: JobGraph, savings: list[Saving] = (), **meta) -> None:
     import json
 
     import matplotlib
@@ -198,7 +278,8 @@ def write_report(rows: list[Row], out: Path, graph: JobGraph, **meta) -> None:
         for r in rows:
             w.writerow([r.backend, r.setting, r.level, f"{r.seconds:.3f}", f"{r.rel_mse:.4e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}", r.samples])
     (out / "bench.json").write_text(json.dumps({"meta": {**meta, "spec": str(graph.spec_path)},
-                                                "equal_error": equal_error_speedups(rows)}, indent=2) + "\n")
+                                                "equal_error": equal_error_speedups(rows),
+                                                "savings": [vars(x) for x in savings]}, indent=2) + "\n")
     fig, ax = plt.subplots(figsize=(8, 5))
     for b, colour in zip(sorted({r.backend for r in rows}), ("tab:blue", "tab:orange", "tab:green")):
         rs = [r for r in rows if r.backend == b and r.setting != "reference"]

@@ -1,0 +1,74 @@
+"""`specsynth bench`: metrics, equal-error speed-ups, savings, and a real tiny run."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from specsynth.bench import Row, camera_savings, equal_error_speedups, psnr8, rel_mse
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_metrics_identity_and_known_values():
+    a = np.full((4, 4, 3), 100, np.uint8)
+    assert psnr8(a, a) == math.inf
+    b = a.copy()
+    b[0, 0, 0] = 110  # one channel of one pixel off by 10: MSE = 100 / 48
+    assert psnr8(a, b) == pytest.approx(10 * math.log10(255**2 / (100 / 48)))
+    x = np.ones((2, 2, 3), np.float32)
+    assert rel_mse(x, x) == 0.0
+
+
+def test_equal_error_speedup_picks_fastest_setting_at_high_error():
+    rows = [Row("c", "high", "high", 10.0, 1e-3, 30.0, 0.9, 225),
+            Row("c", "medium+denoise", "medium", 2.0, 1e-3, 31.0, 0.9, 36),
+            Row("c", "low", "low", 0.5, 1e-1, 20.0, 0.5, 1)]
+    e = equal_error_speedups(rows)["c"]
+    assert e["fastest"] == "medium+denoise" and e["speedup_vs_high"] == 5.0
+
+
+def test_camera_savings_are_priced_with_measured_times():
+    rows = [Row("c", "low", "low", 2.0, 0, 0, 0, 1)]
+    first = {"rejected": 3, "rejected_seconds": 0.3, "cameras": 10, "jobs": 14, "worker_seconds": 5.0, "ran": 14}
+    cached = {**first, "ran": 0, "wall": 0.5}
+    s = {x.what: x.seconds for x in camera_savings("c", rows, "low", (first, cached), load_s=1.5, per_arrangement=4)}
+    assert s["visibility pre-check"] == pytest.approx(3 * 2.0 - 0.3)
+    assert s["scene loaded once per arrangement"] == pytest.approx(3 * 1.5)
+    assert s["cache"] == pytest.approx(4.5)
+
+
+@pytest.mark.slow
+def test_bench_cli_on_the_demo_with_cycles(tmp_path):
+    """A real bench run (Cycles, one view, 32x24): table, CSV, plot and measured savings."""
+    out = tmp_path / "bench"
+    r = subprocess.run([sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
+                        "--views", "1", "--scale", "0.05", "--ref-factor", "1", "--backend", "cycles",
+                        "--set", "arrangements.count=1"], capture_output=True, text=True, timeout=900,
+                       env={**os.environ, "COLUMNS": "250"})
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "what skipping saved" in r.stdout and "light-path budget" in r.stdout
+    with open(out / "bench.csv") as f:
+        rows = list(csv.DictReader(f))
+    settings = {row["setting"] for row in rows}
+    assert {"low", "low+denoise", "medium", "high", "high+adaptive", "reference"} <= settings
+    for row in rows:
+        assert float(row["seconds"]) > 0
+        if row["setting"] != "reference":
+            assert 0 < float(row["psnr_db"]) < 100 and 0 < float(row["ssim"]) <= 1
+    # more samples, less error (noise only: same view, same reference)
+    psnr = {row["setting"]: float(row["psnr_db"]) for row in rows}
+    assert psnr["high"] > psnr["low"]
+    meta = json.loads((out / "bench.json").read_text())
+    what = {s["what"] for s in meta["savings"]}
+    assert what == {"visibility pre-check", "scene loaded once per arrangement", "cache", "light-path budget"}
+    assert all(math.isfinite(s["seconds"]) for s in meta["savings"])
+    assert (out / "bench.png").stat().st_size > 10_000
