@@ -89,7 +89,9 @@ def backend_fingerprint(name: str) -> str:
         eps = [ep for ep in metadata.entry_points(group="specsynth.backends") if ep.name == name]
         dist = eps[0].dist if eps and eps[0].dist is not None else None
         return f"{name} ({dist.name} {dist.version})" if dist else f"{name} (unknown)"
-    return f"{name} (" + ", ".join(f"{d} {_dist_version(d)}" for d in dists) + f"; specsynth {_dist_version('specsynth')})"
+    rev = keys.BACKEND_REVISIONS.get(name, 1)
+    return (f"{name} (" + ", ".join(f"{d} {_dist_version(d)}" for d in dists) + f"; specsynth {_dist_version('specsynth')}"
+            + (f"; backend rev {rev})" if rev > 1 else ")"))
 
 
 def _field(data: dict, dotted: str):

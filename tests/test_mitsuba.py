@@ -191,7 +191,10 @@ def test_moving_only_the_sensor(backend, tmp_path):
         dr.kernel_history()  # clears it
     b = backend.render(v2, _spp(2), seed=5)
     if jit:
-        misses = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit")]
+        misses = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT
+                  # a kernel loaded from ~/.drjit counts as a hit: that is still a per-view compilation
+                  # key (e.g. a pose baked in as literals), so it is a miss here
+                  and (not k.get("cache_hit") or k.get("cache_disk"))]
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         assert not misses, "a new camera pose recompiled a kernel"
     a2 = backend.render(v1, _spp(2), seed=5)
@@ -307,7 +310,10 @@ def test_new_arrangement_reuses_kernels(backend, tmp_path):
         for _ in range(2):
             backend.load(RenderScene(meshes=(floor, moved), lights=(light,)))
             backend.render(cam, _spp(2), seed=1)
-        misses = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit")]
+        misses = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT
+                  # a kernel loaded from ~/.drjit counts as a hit: that is still a per-view compilation
+                  # key (e.g. a pose baked in as literals), so it is a miss here
+                  and (not k.get("cache_hit") or k.get("cache_disk"))]
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert not misses

@@ -16,8 +16,14 @@ from specsynth.meshio import MeshData, read_mesh
 from specsynth.spec import MitsubaOptions, QualityPreset
 
 from . import mapping, scene as scene_mod
+from .sensor import PINHOLE, register_pinhole_sensor
 from .textures import register_product_texture
 from .variant import choose_variant
+
+
+# Worst-case reprojection error (px) below which Mitsuba's square-pixel perspective sensor counts as
+# exact; above it the K sensor renders (JIT variants) or stats report fy_error_px (scalar_rgb).
+EXACT_PX = 1e-3
 
 
 def _options(options: Any) -> MitsubaOptions:
@@ -43,6 +49,7 @@ class MitsubaBackend:
 
         mi.set_variant(self.variant)
         register_product_texture(mi)
+        register_pinhole_sensor(mi)
         if threads > 0:
             dr.set_thread_count(int(threads))
         self._mi, self._dr = mi, dr
@@ -53,6 +60,7 @@ class MitsubaBackend:
         self._sensor = None
         self._sensor_key: tuple | None = None
         self._sensor_params = None
+        self._sensor_type = "perspective"
         self._integrators: dict[tuple[int, int], Any] = {}
         self._clamp_warned = False
 
@@ -107,8 +115,10 @@ class MitsubaBackend:
             "rr_depth": st.rr_depth,
             "seconds": seconds,
             "seed32": seed32,
+            "sensor": self._sensor_type,
         }
-        if sset.fy_error_px > 0.01:
+        if self._sensor_type == "perspective" and sset.fy_error_px > EXACT_PX:
+            # only the scalar fallback renders fy != fx with square pixels (see _use_k_sensor)
             stats["fy_error_px"] = sset.fy_error_px
         if clamp is not None:
             stats["clamp_ignored"] = clamp
@@ -117,6 +127,7 @@ class MitsubaBackend:
     def close(self) -> None:
         self._scene = None
         self._sensor = self._sensor_params = self._sensor_key = None
+        self._sensor_type = "perspective"
         self._integrators.clear()
         self._mesh_cache.clear()
 
@@ -137,18 +148,41 @@ class MitsubaBackend:
             )
         return self._integrators[key]
 
+    def _use_k_sensor(self, sset: mapping.SensorSettings) -> bool:
+        """The K sensor (sensor.py) when the square-pixel ``perspective`` would be off by more than
+        EXACT_PX (fy != fx or skew). Not in ``scalar_rgb``: there Mitsuba calls the Python sensor
+        once per sample (~50x the whole render's cost, measured), so the scalar fallback keeps
+        ``perspective`` and reports ``fy_error_px``."""
+        return sset.fy_error_px > EXACT_PX and self._dr.is_jit_v(self._mi.Float)
+
     def _sensor_for(self, camera: CameraIR, st: mapping.IntegratorSettings):
         sset = mapping.sensor_settings(camera.K_array, camera.width, camera.height)
         key = (camera.K, camera.width, camera.height, camera.near, camera.far, st.sampler, st.spp)
         if key != self._sensor_key:
             mi = self._mi
-            self._sensor = mi.load_dict(
-                {
+            if self._use_k_sensor(sset):
+                K = camera.K_array
+                # exact for any upper-triangular K; same to_world frame, clip and children
+                optics = {
+                    "type": PINHOLE,
+                    "fx": float(K[0, 0]),
+                    "fy": float(K[1, 1]),
+                    "cx": float(K[0, 2]),
+                    "cy": float(K[1, 2]),
+                    "skew": float(K[0, 1]),
+                }
+            else:
+                # Mitsuba's own (C++) sensor when pixels are square: exact there, no Python in the loop
+                optics = {
                     "type": "perspective",
                     "fov": sset.x_fov,
                     "fov_axis": "x",
                     "principal_point_offset_x": sset.ppo_x,
                     "principal_point_offset_y": sset.ppo_y,
+                }
+            self._sensor = mi.load_dict(
+                {
+                    **optics,
                     "near_clip": float(camera.near),
                     "far_clip": float(camera.far),
                     "film": {
@@ -165,6 +199,7 @@ class MitsubaBackend:
             )
             self._sensor_params = mi.traverse(self._sensor)
             self._sensor_key = key
+            self._sensor_type = optics["type"]
             got = self._sensor.sampler().sample_count()
             if got != st.spp:  # mapping.round_spp must mirror Mitsuba's own rounding
                 raise RuntimeError(f"Mitsuba's {st.sampler} took {got} spp, expected {st.spp}")
