@@ -217,6 +217,7 @@ class Worker:
         return out
 
     def run_renders(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
+        from .writers.coco import write_visible_rles
         from .writers.images import encode_depth, write_jpg, write_mask, write_png, write_exr
 
         spec = self.spec
@@ -260,6 +261,7 @@ class Worker:
                     masks_visib.append(f"mask_visib_{gt:06d}.png")
                     write_mask(wd / masks[-1], m)
                     write_mask(wd / masks_visib[-1], mv)
+                write_visible_rles(wd, ann.masks_visib)
             exr_file = None
             if spec.outputs.exr and res.linear is not None:
                 exr_file = "rgb.exr"

@@ -38,10 +38,23 @@ def encode_rle(mask: np.ndarray) -> Rle:
     return {"counts": rle["counts"].decode("ascii"), "size": [int(s) for s in rle["size"]]}
 
 
+# Written by the render job next to its masks, so the serial merge does not decode every mask.
+RLE_FILE = "mask_visib_rle.json"
+
+
+def write_visible_rles(folder: Path, masks_visib: Sequence[np.ndarray]) -> None:
+    """Worker side: the RLEs of a view's visible masks, in gt order."""
+    (Path(folder) / RLE_FILE).write_text(json.dumps([encode_rle(m) for m in masks_visib]))
+
+
 def visible_rles(rec: ImageRecord, store: Path) -> list[Rle | None]:
-    """RLE of each instance's ``mask_visib`` in gt order; None when the build wrote no masks."""
+    """RLE of each instance's ``mask_visib`` in gt order; None when the build wrote no masks.
+    Read from the render job's RLE file, or encoded from the mask files (stores from before it)."""
     if not rec.mask_visib_files:
         return [None] * len(rec.instances)
+    cached = Path(store) / RLE_FILE
+    if cached.is_file():
+        return json.loads(cached.read_text())
     return [encode_rle(read_mask(Path(store) / name)) for name in rec.mask_visib_files]
 
 
