@@ -52,7 +52,8 @@ def settings_for(backend: str, ref_factor: int) -> list[Setting]:
         if backend == "cycles":
             out.append(Setting(backend, f"{level}+denoise", level, {"denoise": True}))
             out.append(Setting(backend, f"{level}+adaptive", level, {"adaptive_threshold": 0.01}))
-        if backend == "mitsuba":
+        if backend == "mitsuba":  # the default sampler is stratified
+            out.append(Setting(backend, f"{level}+independent", level, {"sampler": "independent"}))
             out.append(Setting(backend, f"{level}+ldsampler", level, {"sampler": "ldsampler"}))
     out.append(Setting(backend, "reference", "high", {"__factor__": ref_factor}, reference=True))
     return out
@@ -165,6 +166,14 @@ def light_budget_saving(cls, base_opts: dict, spec, picked, worker, preset, repe
                   f"skipped in {skipped} of {len(times[True])} budgeted renders")
 
 
+def scaled_intrinsics(intr, scale: float):
+    """The same camera at another resolution (pixel centres kept: OpenCV's +0.5 convention)."""
+    return intr.model_copy(update={
+        "width": max(8, round(intr.width * scale)), "height": max(8, round(intr.height * scale)),
+        "fx": intr.fx * scale, "fy": intr.fy * scale, "cx": (intr.cx + 0.5) * scale - 0.5, "cy": (intr.cy + 0.5) * scale - 0.5,
+    })
+
+
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
               scale: float = 0.5, backends: list[str] | None = None, console=None) -> list[Row]:
     from .tasks import BuildContext, Worker
@@ -173,10 +182,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
     out = Path(out)
     spec = graph.spec
     intr = spec.intrinsics
-    small = intr.model_copy(update={
-        "width": max(8, round(intr.width * scale)), "height": max(8, round(intr.height * scale)),
-        "fx": intr.fx * scale, "fy": intr.fy * scale, "cx": (intr.cx + 0.5) * scale - 0.5, "cy": (intr.cy + 0.5) * scale - 0.5,
-    })
+    small = scaled_intrinsics(intr, scale)
     picked, cams = _views(graph, out, n_views)
     if not picked:
         raise RuntimeError("no accepted view to benchmark; widen the camera ranges")
@@ -191,7 +197,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 console.print(f"[yellow]skipping {name}: {e}[/yellow]")
             continue
         base_opts = spec.backend.model_dump() if spec.backend.name == name else {"name": name}
-        base_opts = {k: v for k, v in base_opts.items() if k in {"name", "threads", "variant"}}
+        base_opts = {k: v for k, v in base_opts.items() if k in {"name", "threads", "variant", "sampler"}}
         worker = Worker(BuildContext(spec=spec.model_copy(update={"intrinsics": small}), spec_dir=graph.spec_path.parent, out=out))
         refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         settings = settings_for(name, ref_factor)
