@@ -13,6 +13,7 @@ from specsynth.meshio import MeshData, read_mesh
 
 COLOR_ATTR = "Col"
 MAX_ENV_MAP_RESOLUTION = 1024
+SKY_AZIMUTH_SIGN = -1.0  # IR sun azimuth (counter-clockwise from +Y) -> Blender's sun_rotation
 UV_LAYER = "UVMap"
 
 
@@ -197,7 +198,9 @@ def build_world(bpy, world: WorldIR):
                 sky.sky_type = t
                 break
         sky.sun_elevation = math.radians(world.sun_elevation)
-        sky.sun_rotation = math.radians(world.sun_azimuth)
+        # Blender turns the sun clockwise seen from above (rotation 90 deg puts it towards +X,
+        # measured); the IR's azimuth turns counter-clockwise (90 deg -> -X), as Mitsuba's does.
+        sky.sun_rotation = SKY_AZIMUTH_SIGN * math.radians(world.sun_azimuth)
         # The sun itself is a LightIR sun in the scene; a disc here would light everything twice.
         if hasattr(sky, "sun_disc"):
             sky.sun_disc = False

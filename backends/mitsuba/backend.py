@@ -134,9 +134,10 @@ class MitsubaBackend:
     # ------------------------------------------------------------------ internals
 
     def _has_plugin(self, name: str) -> bool:
+        # (Mitsuba 3.9 has no PluginManager.get_plugin_class: calling it made this always False, so
+        # every sky fell back to the constant one; tests/test_mitsuba_agreement.py guards it.)
         try:
-            self._mi.PluginManager.instance().get_plugin_class(name, self.variant)
-            return True
+            return self._mi.PluginManager.instance().plugin_type(name) != self._mi.ObjectType.Unknown
         except Exception:
             return False
 

@@ -153,3 +153,119 @@ def fold_seed(seed: int) -> int:
     differ only in their high bits still give different images."""
     seed = int(seed) & 0xFFFFFFFFFFFFFFFF
     return (seed ^ (seed >> 32)) & 0xFFFFFFFF
+
+
+
+# ----------------------------------------------------------------------------- Cycles agreement
+# Fixes measured against the Cycles backend (benchmarks/breakdown_backends.py), switchable so that
+# the benchmark can show the numbers before and after them: ``set_agreement_fixes(False)`` gives
+# the mapping as it was before.
+AGREEMENT_FIXES = {
+    "principled_albedo": True,  # calibrate principled to Blender's albedo (principled_calibration)
+    "sky_units": True,  # sunsky brightness in Blender's sky units (sky_scale)
+    "emitter_back": True,  # area-light rectangles let rays through (scene.light_dict)
+}
+
+
+def set_agreement_fixes(on: bool) -> None:
+    for k in AGREEMENT_FIXES:
+        AGREEMENT_FIXES[k] = bool(on)
+
+
+# White-furnace albedo of a dielectric Principled BSDF (metallic 0, no transmission), measured by
+# ``benchmarks/breakdown_backends.py --furnace --spp 256`` (Blender 5.0.1, Mitsuba 3.9.1): a smooth
+# unit sphere in a radiance-1 world, mean over its disc = albedo averaged over cosine-weighted
+# directions. Both are linear in the base colour: albedo = slope * base + intercept.
+# - Blender: intercept = specular-layer albedo E_B(roughness, specular), slope = 1 - E_B (its
+#   diffuse is Lambertian under an energy-conserving specular layer; measured slope + intercept =
+#   1 within 0.15 %).
+# - Mitsuba ``principled``: intercept E_M(roughness, specular) (single-scattering GGX; within 1 % of
+#   E_B up to roughness 0.4, 14 % under at roughness 1: no multiple scattering), slope D_M(roughness)
+#   = the albedo of Burley's diffuse (0.97 at roughness 0 to 1.04 at 1, retro-reflection), not
+#   reduced by the specular layer on top. At roughness 0.9, specular 0.5 (most walls) Mitsuba
+#   reflected 5.3 % more than Blender at base 0.5, compounding over a room's interreflections.
+CALIB_ROUGHNESS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+CALIB_SPECULAR = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+BLENDER_SPECULAR_ALBEDO = (  # rows: roughness, columns: specular
+    (0.0000, 0.0184, 0.0307, 0.0413, 0.0511, 0.0603, 0.0691, 0.0776, 0.0859, 0.0940, 0.1019),
+    (0.0000, 0.0184, 0.0307, 0.0414, 0.0511, 0.0603, 0.0691, 0.0776, 0.0859, 0.0940, 0.1019),
+    (0.0000, 0.0185, 0.0308, 0.0414, 0.0511, 0.0603, 0.0691, 0.0775, 0.0858, 0.0939, 0.1018),
+    (0.0000, 0.0182, 0.0302, 0.0406, 0.0502, 0.0592, 0.0679, 0.0762, 0.0844, 0.0924, 0.1002),
+    (0.0000, 0.0168, 0.0282, 0.0381, 0.0473, 0.0559, 0.0643, 0.0724, 0.0803, 0.0881, 0.0957),
+    (0.0000, 0.0145, 0.0248, 0.0338, 0.0423, 0.0504, 0.0582, 0.0658, 0.0732, 0.0806, 0.0878),
+    (0.0000, 0.0120, 0.0209, 0.0289, 0.0364, 0.0437, 0.0508, 0.0577, 0.0645, 0.0713, 0.0780),
+    (0.0000, 0.0096, 0.0170, 0.0239, 0.0304, 0.0368, 0.0430, 0.0491, 0.0552, 0.0612, 0.0672),
+    (0.0000, 0.0075, 0.0136, 0.0193, 0.0248, 0.0302, 0.0355, 0.0407, 0.0459, 0.0511, 0.0562),
+    (0.0000, 0.0058, 0.0107, 0.0153, 0.0198, 0.0242, 0.0285, 0.0329, 0.0372, 0.0415, 0.0459),
+    (0.0000, 0.0044, 0.0083, 0.0119, 0.0155, 0.0190, 0.0225, 0.0260, 0.0295, 0.0331, 0.0366),
+)
+MITSUBA_SPECULAR_ALBEDO = (
+    (0.0000, 0.0184, 0.0307, 0.0413, 0.0510, 0.0602, 0.0690, 0.0774, 0.0857, 0.0938, 0.1017),
+    (0.0000, 0.0184, 0.0307, 0.0413, 0.0510, 0.0602, 0.0690, 0.0774, 0.0857, 0.0938, 0.1017),
+    (0.0000, 0.0185, 0.0307, 0.0413, 0.0510, 0.0601, 0.0689, 0.0773, 0.0855, 0.0936, 0.1015),
+    (0.0000, 0.0182, 0.0302, 0.0406, 0.0501, 0.0591, 0.0677, 0.0760, 0.0841, 0.0921, 0.0998),
+    (0.0000, 0.0168, 0.0280, 0.0379, 0.0469, 0.0555, 0.0638, 0.0718, 0.0796, 0.0872, 0.0948),
+    (0.0000, 0.0144, 0.0245, 0.0334, 0.0417, 0.0497, 0.0573, 0.0647, 0.0720, 0.0792, 0.0862),
+    (0.0000, 0.0118, 0.0204, 0.0283, 0.0356, 0.0426, 0.0495, 0.0561, 0.0627, 0.0691, 0.0755),
+    (0.0000, 0.0093, 0.0165, 0.0231, 0.0293, 0.0353, 0.0412, 0.0470, 0.0526, 0.0582, 0.0638),
+    (0.0000, 0.0072, 0.0129, 0.0183, 0.0234, 0.0284, 0.0332, 0.0380, 0.0427, 0.0474, 0.0520),
+    (0.0000, 0.0054, 0.0099, 0.0141, 0.0182, 0.0221, 0.0260, 0.0298, 0.0336, 0.0373, 0.0411),
+    (0.0000, 0.0040, 0.0074, 0.0106, 0.0137, 0.0168, 0.0198, 0.0227, 0.0257, 0.0286, 0.0315),
+)
+MITSUBA_DIFFUSE_ALBEDO = (0.9725, 0.9798, 0.9875, 0.9935, 0.9992, 1.0057, 1.0130, 1.0204, 1.0280, 1.0356, 1.0436)
+
+
+def _interp_row(table, r: float) -> np.ndarray:
+    """The table's row at roughness r (linear between the measured rows, clamped to [0, 1])."""
+    return np.array([np.interp(r, CALIB_ROUGHNESS, col) for col in np.asarray(table, dtype=np.float64).T])
+
+
+def principled_calibration(roughness: float, specular: float) -> tuple[float, float]:
+    """(base-colour factor, Mitsuba ``specular``) that give Mitsuba's ``principled`` Blender 5's
+    albedo for a dielectric of this roughness and Specular IOR Level, for any base colour:
+    ``specular'`` makes Mitsuba's specular albedo E_M equal Blender's E_B (the inverse of E_M in
+    specular, extrapolated linearly above the table where a rough Blender surface reflects more
+    than Mitsuba's specular 1 can), and the factor ``(1 - E_B) / D_M`` turns Burley's diffuse
+    albedo into Blender's diffuse-under-specular. Residual (measured after calibration): see
+    tests/test_mitsuba_agreement.py. Only the albedo is matched, not the angular shape (Burley's
+    retro-reflection, single- vs multiple-scattering lobes)."""
+    r = float(min(max(roughness, 0.0), 1.0))
+    s = float(min(max(specular, 0.0), 1.0))
+    e_b = float(np.interp(s, CALIB_SPECULAR, _interp_row(BLENDER_SPECULAR_ALBEDO, r)))
+    e_m = _interp_row(MITSUBA_SPECULAR_ALBEDO, r)
+    if e_b <= e_m[-1]:
+        s_m = float(np.interp(e_b, e_m, CALIB_SPECULAR))
+    else:  # beyond the table: continue its last segment
+        slope = (e_m[-1] - e_m[-2]) / (CALIB_SPECULAR[-1] - CALIB_SPECULAR[-2])
+        s_m = CALIB_SPECULAR[-1] + (e_b - e_m[-1]) / slope
+    d_m = float(np.interp(r, CALIB_ROUGHNESS, MITSUBA_DIFFUSE_ALBEDO))
+    return (1.0 - e_b) / d_m, s_m
+
+
+# Blender's sky texture (MULTIPLE_SCATTERING, aerosol density (turbidity - 1) / 2, sun disc off)
+# is ~50x brighter than Mitsuba's ``sunsky`` (sun_scale 0) at the same strength: Mitsuba's sky is in
+# its own units. Cycles / Mitsuba ratio of the horizontal sky irradiance (luminance; a white floor
+# under the sky alone), rows turbidity, columns sun elevation, measured by
+# ``benchmarks/breakdown_backends.py --sky --spp 64`` (Blender 5.0.1, Mitsuba 3.9.1). Per channel
+# the ratio differs by up to ~10 % (Blender's sky is bluer: R 48, G 54, B 58 at turbidity 3,
+# elevation 38): shape and colour are the models' own, only the brightness is matched.
+SKY_TURBIDITY = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0)
+SKY_ELEVATION = (5.0, 15.0, 30.0, 45.0, 60.0, 80.0)
+SKY_UNITS = (
+    (52.5, 57.0, 56.1, 56.8, 57.7, 57.2),
+    (52.2, 57.1, 56.0, 56.7, 57.7, 56.5),
+    (50.4, 54.9, 53.1, 53.5, 54.6, 54.1),
+    (47.8, 50.6, 48.1, 47.7, 48.6, 49.3),
+    (45.2, 47.0, 43.7, 41.8, 42.2, 43.8),
+    (43.7, 44.3, 38.1, 34.3, 33.8, 36.6),
+    (47.7, 43.5, 32.9, 25.3, 22.6, 25.8),
+)
+
+
+def sky_scale(strength: float, turbidity: float, elevation: float = 45.0) -> float:
+    """``sky_scale`` for a sky of this strength: Mitsuba's sky brightened to Blender's units
+    (bilinear in turbidity and sun elevation, clamped to the table)."""
+    if not AGREEMENT_FIXES["sky_units"]:
+        return float(strength)
+    by_el = [float(np.interp(elevation, SKY_ELEVATION, row)) for row in SKY_UNITS]
+    return float(strength) * float(np.interp(turbidity, SKY_TURBIDITY, by_el))

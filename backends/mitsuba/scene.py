@@ -31,7 +31,7 @@ def _texture_base(mi, material: MaterialIR):
     Mitsuba has no 'multiply' texture, so the constant factor is baked into the pixels once per
     arrangement (cheap next to the render), which keeps the shading exactly base * texture.
     """
-    bmp = mi.Bitmap(str(material.texture))
+    bmp = _read_bitmap(mi, str(material.texture))
     arr = np.asarray(bmp, dtype=np.float32)
     if arr.ndim == 2:
         arr = arr[..., None]
@@ -43,9 +43,41 @@ def _texture_base(mi, material: MaterialIR):
     return {"type": "bitmap", "bitmap": mi.Bitmap(arr), "raw": True}
 
 
+def _read_bitmap(mi, path: str):
+    """``mi.Bitmap(path)``. Mitsuba 3.9's OpenEXR reader deadlocks when Dr.Jit's pool has a single
+    thread (``dr.set_thread_count(1)``, i.e. the backend with ``threads=1``): read with two."""
+    import drjit as dr
+
+    n = dr.thread_count()
+    if n >= 2:
+        return mi.Bitmap(path)
+    dr.set_thread_count(2)
+    try:
+        return mi.Bitmap(path)
+    finally:
+        dr.set_thread_count(n)
+
+
+def uses_principled(material: MaterialIR) -> bool:
+    return not (material.specular == 0 and material.metallic == 0 and material.transmission == 0)
+
+
+def mitsuba_material(material: MaterialIR) -> MaterialIR:
+    """The material as Mitsuba's BSDFs should see it: a dielectric ``principled`` (metallic 0, no
+    transmission) gets the base-colour factor and ``specular`` that match Blender's albedo
+    (mapping.principled_calibration). Metals, transmission and Lambertian materials are as given."""
+    if not (mapping.AGREEMENT_FIXES["principled_albedo"] and uses_principled(material)):
+        return material
+    if material.metallic != 0 or material.transmission != 0:
+        return material
+    k, spec = mapping.principled_calibration(material.roughness, material.specular)
+    return dataclasses.replace(material, base_color=tuple(float(c) * k for c in material.base_color), specular=spec)
+
+
 def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool) -> dict:
     """Base colour = base_color x vertex colour x texture, as in the Cycles backend; base_color is
-    baked into whichever of the other two is present."""
+    baked into whichever of the other two is present. ``material`` is what ``mitsuba_material``
+    returns (build_mesh premultiplies vertex colours by its base_color too)."""
     if material.texture is not None and vertex_colored:
         tex = _texture_base(mi, dataclasses.replace(material, base_color=(1.0, 1.0, 1.0)))
         base = {"type": PRODUCT, "a": {"type": "mesh_attribute", "name": VERTEX_COLOR}, "b": tex}
@@ -55,7 +87,7 @@ def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool) -> dict:
         base = {"type": "mesh_attribute", "name": VERTEX_COLOR}
     else:
         base = {"type": "rgb", "value": [float(c) for c in material.base_color]}
-    if material.specular == 0 and material.metallic == 0 and material.transmission == 0:
+    if not uses_principled(material):
         # Mitsuba's principled diffuse is Burley's (retro-reflection, not energy-conserving: a
         # 0.5 albedo renders 0.49-0.52 by roughness); Blender 4+'s Principled diffuse is
         # Lambertian, and so is this.
@@ -84,7 +116,7 @@ def build_mesh(mi, inst: MeshInstance, data: MeshData):
     if data.normals is not None:
         n = data.normals.astype(np.float64) @ np.linalg.inv(R)  # (R^-T n) as rows
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
-    m = inst.material
+    m = mitsuba_material(inst.material)
     if m.texture is not None and data.uv is None:
         raise ValueError(f"mitsuba: material of {inst.name!r} has a texture but its mesh has no UVs")
     vertex_colored = m.use_vertex_colors and data.colors is not None
@@ -120,12 +152,19 @@ def build_mesh(mi, inst: MeshInstance, data: MeshData):
 def light_dict(light: LightIR) -> dict:
     T = light.matrix
     if light.kind == "area":
+        if mapping.AGREEMENT_FIXES["emitter_back"]:
+            # A Blender area light is no geometry: camera and bounce rays go through it (after
+            # picking up its emission from the front). A ``null`` BSDF does that in Mitsuba's path
+            # integrator, at the cost of one path vertex; shadow rays are still blocked by it
+            # (measured: see benchmarks/breakdown_backends.py).
+            bsdf = {"type": "null"}
+        else:
+            # A black occluder: reflects nothing (not the default 0.5 diffuse), hides what is behind.
+            bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
         return {
             "type": "rectangle",
             "to_world": mapping.rectangle_to_world(T, light.size),
-            # Not the default 0.5 diffuse: a Blender area light reflects nothing; Mitsuba's emitter
-            # still occludes (documented difference).
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+            "bsdf": bsdf,
             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": mapping.area_radiance(light.power, light.size, light.color)}},
         }
     if light.kind == "point":
@@ -169,13 +208,15 @@ def world_dict(world: WorldIR) -> dict | None:
             "to_world": mapping.envmap_to_world(world.rotation_z),
         }
     if world.kind == "sky":
-        # Hosek-Wilkie sky in physical units (Cycles uses its scattering model: brightness differs).
-        # Sky only: the sun is a LightIR sun in the scene, as in the Cycles backend.
+        # Hosek-Wilkie sky (Cycles uses its multiple-scattering model: shape and colour differ),
+        # brightened to Blender's units (mapping.sky_scale). Sky only: the sun is a LightIR sun in
+        # the scene, as in the Cycles backend.
+        turbidity = float(min(max(world.turbidity, 1.0), 10.0))
         return {
             "type": "sunsky",
             "sun_direction": mapping.sun_direction(world.sun_elevation, world.sun_azimuth),
-            "turbidity": float(min(max(world.turbidity, 1.0), 10.0)),
-            "sky_scale": float(world.strength),
+            "turbidity": turbidity,
+            "sky_scale": mapping.sky_scale(world.strength, turbidity, world.sun_elevation),
             "sun_scale": 0.0,
         }
     raise ValueError(f"unknown world kind {world.kind!r}")
@@ -194,6 +235,8 @@ def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData]) -> dict:
         d[f"light_{i:03d}"] = ld
     w = world_dict(scene.world)
     if w is not None:
+        if "filename" in w:
+            w["bitmap"] = _read_bitmap(mi, w.pop("filename"))
         if "to_world" in w:
             w["to_world"] = _matrix(mi, w["to_world"])
         d["world"] = w
