@@ -2,7 +2,6 @@
 
     .venv/bin/python benchmarks/breakdown_backends.py --spp 512 --width 96 --threads 1 \
         --out bench-out/breakdown/current            # ~35 min on one core
-    ... --mapping legacy --out bench-out/breakdown/legacy   # the same before the agreement fixes
 
 Both backends render the overview camera of `specsynth scenes preview` (as
 benchmarks/compare_backends.py) under controlled variants of the backend-neutral scene (modified
@@ -25,8 +24,8 @@ noise's expected share from the MSE (mean-of-two images carry a quarter of the s
 each): an estimate of the PSNR that converged renders would reach (approximate: 8-bit sRGB errors
 are not exactly additive). Radiance ratios are Mitsuba / Cycles mean linear radiance per channel.
 
-``--mapping legacy`` renders with every agreement fix switched off (the mapping before them, see
-``set_fixes``), ``--fixes a,b`` with a subset, for before/after numbers. Output: a markdown table
+The numbers before the agreement fixes were measured with this script at commit 0d03091, which
+could switch them off (``--mapping legacy``, ``--fixes``). Output: a markdown table
 on stdout and ``breakdown.json`` (plus the two-seed-mean PNGs) in ``--out``; a re-run into the same
 folder adds or replaces variants.
 
@@ -45,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from backends.mitsuba import mapping
 from specsynth.backend_api import load_backend
 from specsynth.bench import psnr8
 from specsynth.colour import linear_to_srgb8
@@ -171,42 +171,6 @@ def compare(c: list, m: list) -> tuple[dict, np.ndarray, np.ndarray]:
     }, cm, mm
 
 
-FIXES = ("sky_plugin", "sky_azimuth", "sky_units", "principled_albedo", "emitter_back")
-
-
-def set_fixes(enabled) -> None:
-    """Switch the agreement fixes on or off, so that one checkout measures before and after:
-    - sky_plugin: MitsubaBackend._has_plugin called a PluginManager method Mitsuba 3.9 lacks, so it
-      was always False and a crude constant-colour sky plus a second sun replaced ``sunsky``;
-    - sky_azimuth: the Cycles backend turned the sky's sun clockwise (Blender's sense) against the
-      IR's counter-clockwise azimuth (backends.cycles.build.SKY_AZIMUTH_SIGN);
-    - sky_units, principled_albedo, emitter_back: backends.mitsuba.mapping.AGREEMENT_FIXES.
-    """
-    from backends.cycles import build as cycles_build
-    from backends.mitsuba import mapping
-    from backends.mitsuba.backend import MitsubaBackend
-
-    enabled = set(enabled)
-    for k in mapping.AGREEMENT_FIXES:
-        mapping.AGREEMENT_FIXES[k] = k in enabled
-    cycles_build.SKY_AZIMUTH_SIGN = -1.0 if "sky_azimuth" in enabled else 1.0
-    orig = getattr(MitsubaBackend, "_orig_has_plugin", MitsubaBackend._has_plugin)
-    MitsubaBackend._orig_has_plugin = orig
-
-    def has_plugin(self, name):
-        if "sky_plugin" not in enabled:
-            return False  # as before the fix
-        if orig(self, "diffuse"):  # the backend's own check works (fixed there)
-            return orig(self, name)
-        return self._mi.PluginManager.instance().plugin_type(name) != self._mi.ObjectType.Unknown
-
-    MitsubaBackend._has_plugin = has_plugin
-
-
-def set_mapping(mode: str) -> None:
-    set_fixes(() if mode == "legacy" else FIXES)
-
-
 # ---------------------------------------------------------------- white furnace (BSDF calibration)
 
 FURNACE_ROUGHNESS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
@@ -247,9 +211,8 @@ def furnace(args) -> None:
     world = WorldIR(kind="color", color=(1.0, 1.0, 1.0), strength=1.0)
     eye = np.eye(4)
 
-    set_mapping("legacy")  # raw principled in Mitsuba
-
-    opts = {"cycles": {"name": "cycles"}, "mitsuba": {"name": "mitsuba", "samples": args.spp}}
+    # Mitsuba's own principled, uncalibrated: these tables are what the calibration is made from.
+    opts = {"cycles": {"name": "cycles"}, "mitsuba": {"name": "mitsuba", "samples": args.spp, "match_cycles_bsdf": False}}
     table: dict = {}
     for b in ("cycles", "mitsuba"):
         backend = load_backend(b)(opts[b], threads=args.threads)
@@ -295,7 +258,6 @@ def sky(args) -> None:
     from specsynth.ir import CameraIR, MaterialIR, MeshInstance, as_tuple
     from specsynth.meshio import MeshData, write_mesh
 
-    set_fixes(("sky_plugin", "sky_azimuth"))  # the real sunsky, in its own units
     tmp = Path(tempfile.mkdtemp(prefix="sky-"))
     v = np.array([[-500, -500, 0], [500, -500, 0], [500, 500, 0], [-500, 500, 0]], np.float32)
     write_mesh(tmp / "quad.ply", MeshData(vertices=v, faces=np.array([[0, 1, 2], [0, 2, 3]], np.int32),
@@ -323,8 +285,10 @@ def sky(args) -> None:
         row = []
         for el in SKY_ELEVATION:
             x = res[f"{tu:g},{el:g}"]
-            row.append(float(lum @ np.array(x["cycles"]) / (lum @ np.array(x["mitsuba"]))))
-            x["ratio_rgb"] = (np.array(x["cycles"]) / np.array(x["mitsuba"])).round(2).tolist()
+            # Mitsuba rendered with the current sky units: undo them to get the ratio to sunsky's own.
+            units = mapping.sky_scale(1.0, tu, el)
+            row.append(units * float(lum @ np.array(x["cycles"]) / (lum @ np.array(x["mitsuba"]))))
+            x["ratio_rgb"] = (units * np.array(x["cycles"]) / np.array(x["mitsuba"])).round(2).tolist()
         table[tu] = row
         print(f"{tu:4g}: " + " ".join(f"{v:6.1f}" for v in row) + f"   mean {np.mean(row):.1f}")
     out = Path(args.out)
@@ -343,7 +307,6 @@ def shape(args) -> None:
     from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance
     from specsynth.meshio import MeshData, write_mesh
 
-    set_mapping("current")
     tmp = Path(tempfile.mkdtemp(prefix="shape-"))
     v = np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], np.float32)
     write_mesh(tmp / "q.ply", MeshData(vertices=v, faces=np.array([[0, 1, 2], [0, 2, 3]], np.int32),
@@ -392,9 +355,6 @@ def main() -> None:
         default=["as_is", "no_bsdf", "no_world", "no_sun", "no_emitters", "all"],
         help="as_is, no_<cause>, only_<cause>, all; causes: " + ", ".join(CAUSES),
     )
-    ap.add_argument("--mapping", choices=["current", "legacy"], default="current",
-                    help="legacy = every agreement fix off (the mapping before them)")
-    ap.add_argument("--fixes", default=None, help="comma-separated subset of " + ",".join(FIXES) + " (overrides --mapping)")
     ap.add_argument("--furnace", action="store_true", help="measure the Principled albedo tables instead")
     ap.add_argument("--sky", action="store_true", help="measure the sky-brightness ratio instead")
     ap.add_argument("--shape", action="store_true", help="measure the calibrated BSDF's angular shape instead")
@@ -407,10 +367,6 @@ def main() -> None:
         return sky(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.fixes is not None:
-        set_fixes([f for f in args.fixes.split(",") if f])
-    else:
-        set_mapping(args.mapping)
     w = args.width
     h = w * 3 // 4
     intr = Intrinsics(width=w, height=h, fx=0.45 * w, fy=0.45 * w, cx=w / 2 - 0.5, cy=h / 2 - 0.5)

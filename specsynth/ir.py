@@ -83,7 +83,7 @@ class WorldIR:
     rotation_z: float = 0.0  # degrees, rotation of the environment about world Z
     # sky: a physical daylight model of the sky dome only (no sun disc: put the sun in the scene as
     # a LightIR of kind "sun" pointing the same way); sun direction in degrees, azimuth 0 = +Y,
-    # counter-clockwise seen from above (Blender's convention).
+    # counter-clockwise seen from above (Blender's own sky turns clockwise: its backend negates it).
     sun_elevation: float = 45.0
     sun_azimuth: float = 0.0
     turbidity: float = 3.0

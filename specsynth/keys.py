@@ -17,8 +17,9 @@ STAGE_VERSIONS = {"arrange": 1, "view": 1, "render": 1}
 
 # Bump a built-in backend's revision when its images change for the same inputs and package
 # versions (a fix in its mapping): only that backend's renders re-run. Unlisted backends: 1.
-# mitsuba 2: exact K sensor for fy != fx.
-BACKEND_REVISIONS = {"mitsuba": 2}
+# mitsuba 2: exact K sensor for fy != fx, stratified sampler, albedo calibrated to Cycles, sky
+# units, see-through area lights. cycles 2: sky sun azimuth turned the IR's way.
+BACKEND_REVISIONS = {"mitsuba": 2, "cycles": 2}
 
 
 def canonical_json(obj: Any) -> bytes:

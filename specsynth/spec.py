@@ -287,6 +287,11 @@ class MitsubaOptions(Strict):
         "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k.",
     )
     samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
+    match_cycles_bsdf: bool = Field(
+        True,
+        description="Calibrate Mitsuba's principled BSDF to Blender's per-bounce albedo (dielectrics), so the "
+        "two backends render the same scene alike; false = Mitsuba's own principled.",
+    )
 
 
 class Augment(Strict):

@@ -79,10 +79,9 @@ class MitsubaBackend:
         for inst in scene.meshes:
             if inst.mesh_key not in self._mesh_cache:
                 self._mesh_cache[inst.mesh_key] = read_mesh(inst.mesh_path).validate(inst.mesh_path)
-        d = scene_mod.scene_dict(mi, scene, self._mesh_cache)
+        d = scene_mod.scene_dict(mi, scene, self._mesh_cache, calibrate=self.options.match_cycles_bsdf)
         if d.get("world", {}).get("type") == "sunsky" and not self._has_plugin("sunsky"):
-            d["world"], sun = _sky_fallback(scene.world)
-            d["sun_fallback"] = sun
+            d["world"] = _sky_fallback(scene.world)
         self._scene = mi.load_dict(d)
 
     def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None) -> RenderResult:
@@ -212,14 +211,12 @@ class MitsubaBackend:
         self._sensor_params.update()
 
 
-def _sky_fallback(world) -> tuple[dict, dict]:
-    """For Mitsuba builds without ``sunsky``: a uniform pale-blue sky plus a directional sun.
-    Crude (no horizon gradient); documented in docs/backends/mitsuba.md."""
-    s = float(world.strength)
-    sky = {"type": "constant", "radiance": {"type": "rgb", "value": [0.35 * s, 0.5 * s, 0.8 * s]}}
-    sun = {
-        "type": "directional",
-        "direction": [-x for x in mapping.sun_direction(world.sun_elevation, world.sun_azimuth)],
-        "irradiance": {"type": "rgb", "value": [8.0 * s, 7.6 * s, 7.0 * s]},
-    }
-    return sky, sun
+def _sky_fallback(world) -> dict:
+    """For Mitsuba builds without ``sunsky`` (< 3.6): a uniform pale-blue sky, brightened to
+    Blender's sky units like ``sunsky`` is. Crude (no horizon gradient, no colour shift with the
+    sun); the sun itself is the scene's own sun light, as with ``sunsky``."""
+    s = mapping.sky_scale(world.strength, min(max(world.turbidity, 1.0), 10.0), world.sun_elevation)
+    # The constant radiance giving a white floor the horizontal irradiance of Mitsuba 3.9's sunsky
+    # (turbidity 3, sun elevation 38 deg, sky_scale 1; measured: a 16x16 render of an albedo-1 floor;
+    # 0.040-0.054 red at elevation 20-60 deg).
+    return {"type": "constant", "radiance": {"type": "rgb", "value": [0.049 * s, 0.076 * s, 0.124 * s]}}

@@ -155,22 +155,9 @@ def fold_seed(seed: int) -> int:
     return (seed ^ (seed >> 32)) & 0xFFFFFFFF
 
 
-
 # ----------------------------------------------------------------------------- Cycles agreement
-# Fixes measured against the Cycles backend (benchmarks/breakdown_backends.py), switchable so that
-# the benchmark can show the numbers before and after them: ``set_agreement_fixes(False)`` gives
-# the mapping as it was before.
-AGREEMENT_FIXES = {
-    "principled_albedo": True,  # calibrate principled to Blender's albedo (principled_calibration)
-    "sky_units": True,  # sunsky brightness in Blender's sky units (sky_scale)
-    "emitter_back": True,  # area-light rectangles let rays through (scene.light_dict)
-}
-
-
-def set_agreement_fixes(on: bool) -> None:
-    for k in AGREEMENT_FIXES:
-        AGREEMENT_FIXES[k] = bool(on)
-
+# Measured against the Cycles backend (benchmarks/breakdown_backends.py; before/after numbers in the
+# README, "Cycles vs Mitsuba on the built-in scenes").
 
 # White-furnace albedo of a dielectric Principled BSDF (metallic 0, no transmission), measured by
 # ``benchmarks/breakdown_backends.py --furnace --spp 256`` (Blender 5.0.1, Mitsuba 3.9.1): a smooth
@@ -265,7 +252,5 @@ SKY_UNITS = (
 def sky_scale(strength: float, turbidity: float, elevation: float = 45.0) -> float:
     """``sky_scale`` for a sky of this strength: Mitsuba's sky brightened to Blender's units
     (bilinear in turbidity and sun elevation, clamped to the table)."""
-    if not AGREEMENT_FIXES["sky_units"]:
-        return float(strength)
     by_el = [float(np.interp(elevation, SKY_ELEVATION, row)) for row in SKY_UNITS]
     return float(strength) * float(np.interp(turbidity, SKY_TURBIDITY, by_el))

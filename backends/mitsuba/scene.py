@@ -62,11 +62,11 @@ def uses_principled(material: MaterialIR) -> bool:
     return not (material.specular == 0 and material.metallic == 0 and material.transmission == 0)
 
 
-def mitsuba_material(material: MaterialIR) -> MaterialIR:
+def mitsuba_material(material: MaterialIR, calibrate: bool = True) -> MaterialIR:
     """The material as Mitsuba's BSDFs should see it: a dielectric ``principled`` (metallic 0, no
     transmission) gets the base-colour factor and ``specular`` that match Blender's albedo
     (mapping.principled_calibration). Metals, transmission and Lambertian materials are as given."""
-    if not (mapping.AGREEMENT_FIXES["principled_albedo"] and uses_principled(material)):
+    if not (calibrate and uses_principled(material)):
         return material
     if material.metallic != 0 or material.transmission != 0:
         return material
@@ -108,7 +108,7 @@ def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool) -> dict:
     return {"type": "twosided", "material": bsdf}
 
 
-def build_mesh(mi, inst: MeshInstance, data: MeshData):
+def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True):
     T = inst.matrix
     R, t = T[:3, :3], T[:3, 3]
     v = data.vertices.astype(np.float64) @ R.T + t
@@ -116,7 +116,7 @@ def build_mesh(mi, inst: MeshInstance, data: MeshData):
     if data.normals is not None:
         n = data.normals.astype(np.float64) @ np.linalg.inv(R)  # (R^-T n) as rows
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
-    m = mitsuba_material(inst.material)
+    m = mitsuba_material(inst.material, calibrate)
     if m.texture is not None and data.uv is None:
         raise ValueError(f"mitsuba: material of {inst.name!r} has a texture but its mesh has no UVs")
     vertex_colored = m.use_vertex_colors and data.colors is not None
@@ -152,19 +152,14 @@ def build_mesh(mi, inst: MeshInstance, data: MeshData):
 def light_dict(light: LightIR) -> dict:
     T = light.matrix
     if light.kind == "area":
-        if mapping.AGREEMENT_FIXES["emitter_back"]:
-            # A Blender area light is no geometry: camera and bounce rays go through it (after
-            # picking up its emission from the front). A ``null`` BSDF does that in Mitsuba's path
-            # integrator, at the cost of one path vertex; shadow rays are still blocked by it
-            # (measured: see benchmarks/breakdown_backends.py).
-            bsdf = {"type": "null"}
-        else:
-            # A black occluder: reflects nothing (not the default 0.5 diffuse), hides what is behind.
-            bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
         return {
             "type": "rectangle",
             "to_world": mapping.rectangle_to_world(T, light.size),
-            "bsdf": bsdf,
+            # A Blender area light is no geometry: camera and bounce rays go through it (after
+            # picking up its emission from the front). A ``null`` BSDF does that in Mitsuba's path
+            # integrator, at the cost of one path vertex; shadow rays are still blocked by it.
+            # (A black occluder here showed as a black bar in room2: -5.1 dB against Cycles.)
+            "bsdf": {"type": "null"},
             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": mapping.area_radiance(light.power, light.size, light.color)}},
         }
     if light.kind == "point":
@@ -222,11 +217,11 @@ def world_dict(world: WorldIR) -> dict | None:
     raise ValueError(f"unknown world kind {world.kind!r}")
 
 
-def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData]) -> dict:
+def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData], calibrate: bool = True) -> dict:
     """``meshes`` maps mesh_key -> arrays (the backend's cache)."""
     d: dict = {"type": "scene"}
     for i, inst in enumerate(scene.meshes):
-        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key])
+        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key], calibrate)
     for i, light in enumerate(scene.lights):
         ld = light_dict(light)
         for k in ("to_world",):

@@ -244,8 +244,9 @@ def _envmap_path(world: World, scene_path: Path) -> Path | None:
 
 def _world(world: World, scene_path: Path) -> WorldIR:
     if world.sky is not None:
+        # Scene files measure the azimuth from +X (like every other angle in them), the IR from +Y.
         return WorldIR(kind="sky", strength=world.strength, rotation_z=world.rotation,
-                       sun_elevation=world.sky.sun_elevation, sun_azimuth=world.sky.sun_azimuth,
+                       sun_elevation=world.sky.sun_elevation, sun_azimuth=world.sky.sun_azimuth - 90.0,
                        turbidity=world.sky.turbidity)
     if world.envmap is not None:
         p = _envmap_path(world, scene_path)
