@@ -240,7 +240,8 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads)
         wkey = str(ctx.out)  # which worker state a task uses (one Dask worker may serve several builds)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
-        window = 2 * max(1, getattr(ex, "workers", jobs))
+        workers = max(1, getattr(ex, "workers", jobs))
+        window = 2 * workers
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
         st, sv, sr = (summary.stages[s] for s in STAGES)
         views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
@@ -264,8 +265,6 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     return [Call(task_views, (wkey, a.key, todo), "view", a.id, len(todo), i)]
 
                 def render_calls(i: int) -> list[Call]:
-                    if until == "view":
-                        return []
                     a, views, renders = arr_jobs[i]
                     todo, cached = [], 0
                     for v, r in zip(views, renders):
@@ -278,6 +277,8 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                             summary.views_dropped += 1
                             continue
                         summary.views_accepted += 1
+                        if until == "view":  # (the camera bookkeeping above is still wanted)
+                            continue
                         sr.total += 1
                         if store.has("render", r.key):
                             cached += 1
@@ -287,7 +288,10 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     sr.cached += cached
                     prog.update(bars["render"], total=sr.total)
                     advance("render", cached)
-                    chunks = [todo[k:k + RENDER_CHUNK] for k in range(0, len(todo), RENDER_CHUNK)]
+                    # Split an arrangement's renders between the workers (each loads the scene once):
+                    # otherwise the last arrangement's group runs alone at the end of the build.
+                    size = max(1, min(RENDER_CHUNK, -(-len(todo) // workers)))
+                    chunks = [todo[k:k + size] for k in range(0, len(todo), size)]
                     return [Call(task_renders, (wkey, a.key, c), "render", _group_id(c[0]), len(c), i) for c in chunks]
 
                 def view_resolved(i: int, n: int) -> list[Call]:
