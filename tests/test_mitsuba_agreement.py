@@ -78,12 +78,8 @@ mi = pytest.importorskip("mitsuba")
 
 
 @pytest.fixture(scope="module")
-def backend():
-    from backends.mitsuba import MitsubaBackend
-
-    b = MitsubaBackend({"variant": "auto"}, threads=2)
-    yield b
-    b.close()
+def backend(mitsuba_backend):
+    return mitsuba_backend
 
 
 def _write(tmp, name, mesh: MeshData) -> str:

@@ -37,15 +37,10 @@ mi = pytest.importorskip("mitsuba")
 
 
 @pytest.fixture(scope="module")
-def backend():
-    from backends.mitsuba import MitsubaBackend
-
-    b = MitsubaBackend({"variant": "auto"}, threads=2)
-    if not b._dr.is_jit_v(b._mi.Float):
-        b.close()
+def backend(mitsuba_backend):
+    if not mitsuba_backend._dr.is_jit_v(mitsuba_backend._mi.Float):
         pytest.skip("scalar_rgb keeps the perspective sensor (the Python sensor would run per sample)")
-    yield b
-    b.close()
+    return mitsuba_backend
 
 
 def _write(tmp, name, mesh: MeshData) -> str:
