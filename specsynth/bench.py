@@ -21,7 +21,7 @@ from .build import build
 from .compiler import JobGraph
 from .records import ArrangementRecord, ViewRecord
 from .spec import CyclesOptions, QualityPreset
-from .store import Store
+from .store import Store, write_json
 
 
 @dataclass
@@ -110,7 +110,7 @@ def _timed_view_build(graph: JobGraph, out: Path) -> dict:
             "cameras": s.stages["view"].total, "rejected": s.cameras_rejected, "rejected_seconds": s.rejected_seconds}
     meta = Path(out) / ".specsynth" / "bench_views.json"
     if ran:
-        meta.write_text(json.dumps(info) + "\n")
+        write_json(meta, info)
     elif meta.exists():
         return {**json.loads(meta.read_text()), "wall": wall, "ran": 0, "cached_wall": wall}
     return info

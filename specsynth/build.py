@@ -206,12 +206,24 @@ def _run(ex, calls: list[Call], on_done: Callable[[Call, Any], list[Call]],
                 suspects.append(c)
             elif c.tries < retries:
                 c.tries += 1
-                suspects.append(c) if _is_crash(e) else push([c])
+                if _is_crash(e):
+                    suspects.append(c)
+                else:
+                    push([c])
             else:
-                parts = split(c)
-                push(parts) if parts else push(on_error(c, e))
+                push(split(c) or on_error(c, e))
             continue
         push(on_done(c, res))
+
+
+def split_group(c: Call) -> list[Call] | None:
+    """A failed view or render group as single-job calls; None for an arrangement or a single job."""
+    if c.stage == "arrange":  # args (worker key, job): nothing to split
+        return None
+    fn, (wk, key, group) = c.fn, c.args
+    if len(group) < 2:
+        return None
+    return [Call(fn, (wk, key, [j]), c.stage, _group_id(j), 1, c.arr) for j in group]
 
 
 # Renders per call: one scene load serves up to this many cameras of an arrangement, and the
@@ -313,12 +325,6 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}"})
                     return view_resolved(c.arr, c.n) if c.stage == "view" else []
 
-                def split(c: Call) -> list[Call] | None:
-                    fn, (wk, key, group) = c.fn, c.args
-                    if c.stage == "arrange" or len(group) < 2:
-                        return None
-                    return [Call(fn, (wk, key, [j]), c.stage, _group_id(j), 1, c.arr) for j in group]
-
                 st.total, sv.total = len(arr_jobs), graph.n_views
                 prog.update(bars["arrange"], total=st.total)
                 prog.update(bars["view"], total=sv.total)
@@ -330,7 +336,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                         calls += view_calls(i)
                     else:
                         calls.append(Call(task_arrange, (wkey, a), "arrange", a.id, 1, i))
-                _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split)
+                _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split_group)
         finally:
             ex.shutdown()
         summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))

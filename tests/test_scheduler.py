@@ -89,3 +89,18 @@ def test_retry_then_split_then_report():
     assert failed == [("bad", "bad job")]
     assert sorted(map(tuple, done)) == [("a",), ("b",)]
     assert tries["bad"] == 2 + 2  # the group twice (one retry), then alone twice
+
+
+def test_build_splits_view_and_render_groups_but_not_arrangements():
+    """An arrangement call (args: worker key, job) that keeps failing is reported, not unpacked
+    as a group (that raised inside the scheduler and stopped the whole build)."""
+    from types import SimpleNamespace as Job
+
+    from specsynth.build import split_group
+
+    arrange = Call(print, ("w", Job(id="arr=000000")), "arrange", "arr=000000", 1, 0)
+    assert split_group(arrange) is None
+    a, b = Job(id="arr=000000/cam=000"), Job(id="arr=000000/cam=001")
+    parts = split_group(Call(print, ("w", "key", [a, b]), "view", "arr=000000", 2, 0))
+    assert [(c.args, c.n, c.ident) for c in parts] == [(("w", "key", [a]), 1, a.id), (("w", "key", [b]), 1, b.id)]
+    assert split_group(Call(print, ("w", "key", [a]), "view", a.id, 1, 0)) is None

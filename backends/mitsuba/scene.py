@@ -66,9 +66,7 @@ def mitsuba_material(material: MaterialIR, calibrate: bool = True) -> MaterialIR
     """The material as Mitsuba's BSDFs should see it: a dielectric ``principled`` (metallic 0, no
     transmission) gets the base-colour factor and ``specular`` that match Blender's albedo
     (mapping.principled_calibration). Metals, transmission and Lambertian materials are as given."""
-    if not (calibrate and uses_principled(material)):
-        return material
-    if material.metallic != 0 or material.transmission != 0:
+    if not calibrate or material.specular == 0 or material.metallic != 0 or material.transmission != 0:
         return material
     k, spec = mapping.principled_calibration(material.roughness, material.specular)
     return dataclasses.replace(material, base_color=tuple(float(c) * k for c in material.base_color), specular=spec)
