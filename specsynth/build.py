@@ -85,6 +85,11 @@ class BuildSummary:
     saved: dict[str, float] = field(default_factory=dict)
     glossy_bounces_skipped: int = 0  # renders whose scene had no glossy material
     wall_seconds: float = 0.0
+    workers: int = 0
+    # From the first job's start to the last job's end, and the share of it the workers were busy
+    # (worker-seconds / (workers x that span)); the rest is start-up, scheduling and the tail.
+    run_seconds: float = 0.0
+    utilisation: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         d = self.__dict__.copy()
@@ -151,10 +156,13 @@ class Call:
     tries: int = 0
 
     @property
-    def priority(self) -> tuple[int, int]:
-        # Later stages first, then older arrangements: an arrangement flows through to its images
-        # while other workers are still arranging, so no stage waits for the slowest job of another.
-        return (STAGES[::-1].index(self.stage), self.arr)
+    def priority(self) -> tuple[bool, int, int]:
+        # Arrangements first, then later stages, then older arrangements. Physics is the long,
+        # unpredictable job (p90 2-3 s per arrangement): run last, one settling left a worker idle
+        # ~2 s at the end of a 20 s build (measured; 96 % of the run busy, 99.5 % this way). Its
+        # cameras and images then follow as each arrangement settles, and an arrangement's renders
+        # go before the next one's cameras, so the workers' loaded scenes are reused.
+        return (self.stage != "arrange", STAGES[::-1].index(self.stage), self.arr)
 
 
 def _run(ex, calls: list[Call], on_done: Callable[[Call, Any], list[Call]],
@@ -227,8 +235,20 @@ def split_group(c: Call) -> list[Call] | None:
 
 
 # Renders per call: one scene load serves up to this many cameras of an arrangement, and the
-# end of a build is not left to one worker with a long group while the others idle.
+# end of a build is not left to one worker with a long group while the others idle. Renders
+# estimated to take longer than SINGLE_RENDER_SECONDS go one per call: a task's round trip
+# (0.5 ms local, 11 ms Dask) and a scene load (~0.07 s with Cycles) are small next to them, and a
+# build then ends on one render, not on a group of them.
 RENDER_CHUNK = 8
+SINGLE_RENDER_SECONDS = 0.5
+
+
+def render_chunk(graph: JobGraph, n: int, workers: int) -> int:
+    """How many of an arrangement's ``n`` renders go in one call."""
+    a, b = EST_RENDER.get(graph.spec.backend.name, (1.0, 0.1))
+    if a + b * _samples(graph) >= SINGLE_RENDER_SECONDS:
+        return 1
+    return max(1, min(RENDER_CHUNK, -(-n // workers)))
 
 
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
@@ -257,6 +277,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
         st, sv, sr = (summary.stages[s] for s in STAGES)
         views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
+        spans: list[tuple[str, str, int, int, float, float]] = []  # stage, call, jobs, pid, start, seconds
         cached_render: set[str] = set()
 
         try:
@@ -302,7 +323,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     advance("render", cached)
                     # Split an arrangement's renders between the workers (each loads the scene once):
                     # otherwise the last arrangement's group runs alone at the end of the build.
-                    size = max(1, min(RENDER_CHUNK, -(-len(todo) // workers)))
+                    size = render_chunk(graph, len(todo), workers)
                     chunks = [todo[k:k + size] for k in range(0, len(todo), size)]
                     return [Call(task_renders, (wkey, a.key, c), "render", _group_id(c[0]), len(c), i) for c in chunks]
 
@@ -311,7 +332,8 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                     return render_calls(i) if views_left[i] == 0 else []
 
                 def on_done(c: Call, res) -> list[Call]:
-                    seconds, _ = res
+                    seconds, _, (pid, start) = res
+                    spans.append((c.stage, c.ident, c.n, pid, start, seconds))
                     stage = summary.stages[c.stage]
                     stage.ran += c.n
                     stage.seconds += seconds
@@ -339,6 +361,13 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
                 _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split_group)
         finally:
             ex.shutdown()
+        summary.workers = workers
+        if spans:
+            t_first = min(sp[4] for sp in spans)
+            summary.run_seconds = max(sp[4] + sp[5] for sp in spans) - t_first
+            busy = sum(sp[5] for sp in spans)
+            summary.utilisation = round(busy / (workers * summary.run_seconds), 3) if summary.run_seconds else 1.0
+            write_json(out / ".specsynth" / "trace.json", _trace(spans, t_first), indent=None)
         summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))
         if until == "view":
             return summary
@@ -368,6 +397,18 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         write_json(out / "failures.json", summary.failures)
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary
+
+
+def _trace(spans, t0: float) -> dict[str, Any]:
+    """The run as Chrome trace events (open in https://ui.perfetto.dev or chrome://tracing): one
+    row per worker process, one box per call."""
+    pids = {pid: k for k, pid in enumerate(sorted({sp[3] for sp in spans}))}
+    events = [{"name": f"{stage} {ident}" + (f" ({n})" if n > 1 else ""), "cat": stage, "ph": "X",
+               "ts": round(1e6 * (start - t0)), "dur": round(1e6 * seconds), "pid": 1, "tid": pids[pid]}
+              for stage, ident, n, pid, start, seconds in spans]
+    events += [{"name": "thread_name", "ph": "M", "pid": 1, "tid": k, "args": {"name": f"worker {k} (pid {pid})"}}
+               for pid, k in pids.items()]
+    return {"traceEvents": events, "displayTimeUnit": "ms"}
 
 
 def _group_id(item) -> str:

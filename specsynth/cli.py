@@ -92,8 +92,10 @@ def cmd_plan(args) -> int:
 
 def _summary_table(s) -> Table:
     # Stages overlap (pipelined per arrangement): their seconds are summed over workers.
+    busy = (f", {s.workers} worker(s) busy {100 * s.utilisation:.0f} % of {s.run_seconds:.1f} s "
+            f"(timeline: .specsynth/trace.json)" if s.run_seconds else "")
     t = Table(title=f"build summary: {s.out}  [{s.backend}]  {s.wall_seconds:.1f} s wall",
-              caption="worker s: seconds of worker time per stage (stages overlap)")
+              caption=f"worker s: seconds of worker time per stage (stages overlap){busy}")
     for col in ("stage", "jobs", "cached", "ran", "failed", "worker s"):
         t.add_column(col, justify="right" if col != "stage" else "left")
     for name, st in s.stages.items():

@@ -242,3 +242,34 @@ def test_render_jobs_store_the_rles_the_merge_would_encode(built):
     for d in dirs:
         rec = json.loads((d / "record.json").read_text())
         assert json.loads((d / RLE_FILE).read_text()) == [encode_rle(read_mask(d / m)) for m in rec["mask_visib_files"]]
+
+
+def test_timeline_covers_every_job_the_build_ran(built):
+    out, s = built
+    trace = json.loads((out / ".specsynth" / "trace.json").read_text())["traceEvents"]
+    boxes = [e for e in trace if e["ph"] == "X"]
+    for stage in ("arrange", "view", "render"):  # a box per call; "(n)" when it holds n jobs
+        n = sum(int(e["name"].rsplit("(", 1)[1][:-1]) if e["name"].endswith(")") else 1 for e in boxes if e["cat"] == stage)
+        assert n == s.stages[stage].ran
+    assert {e["tid"] for e in boxes} == {0} and s.workers == 1
+    assert all(e["ts"] >= 0 and e["dur"] > 0 for e in boxes)
+    assert 0 < s.utilisation <= 1 and s.run_seconds <= s.wall_seconds
+
+
+def test_workers_use_one_blas_thread_and_give_it_back(spec_file, tmp_path):
+    from threadpoolctl import threadpool_info
+
+    from specsynth.tasks import BuildContext, close_worker, init_worker
+
+    def blas():
+        return {i["filepath"]: i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    before = blas()
+    g = graph(spec_file)
+    ctx = BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path, threads=2)
+    init_worker(ctx)
+    try:
+        assert blas() and all(n == 1 for n in blas().values())
+    finally:
+        close_worker(str(tmp_path))
+    assert blas() == before

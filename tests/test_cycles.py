@@ -427,3 +427,56 @@ def test_masks_agree_with_annotation_engine(backend, meshes):
         assert iou >= 0.98, (gt.inst, iou)
         checked += 1
     assert checked >= 2
+
+
+# --------------------------------------------------------------------------- threads
+
+
+def test_tbb_sizing_narrows_affinity_only_inside():
+    import os
+
+    from backends.cycles.settings import tbb_sized_to
+
+    full = os.sched_getaffinity(0)
+    with tbb_sized_to(1):
+        assert len(os.sched_getaffinity(0)) == 1
+    assert os.sched_getaffinity(0) == full
+    with tbb_sized_to(len(full)):  # the whole machine: nothing to narrow
+        assert os.sched_getaffinity(0) == full
+
+
+_ONE_CORE = """
+import json, os, sys, time
+sys.path[:0] = [sys.argv[2], sys.argv[3]]
+from test_cycles import LOW, QualityPreset, _lit_scene, camera
+from backends.cycles import CyclesBackend
+from specsynth.spec import CyclesOptions
+b = CyclesBackend(CyclesOptions(name="cycles", threads=1))
+q = QualityPreset(**{**LOW.model_dump(), "aa": 16})
+t0, c0 = time.perf_counter(), os.times()
+for k in range(3):
+    b.load(_lit_scene(json.loads(sys.argv[1]), glossy=bool(k % 2)))
+    b.render(camera(W=96, H=72), q, seed=k)
+c1 = os.times()
+print((c1.user + c1.system - c0.user - c0.system) / (time.perf_counter() - t0))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(len(__import__("os").sched_getaffinity(0)) < 2, reason="needs two cores")
+def test_one_thread_worker_uses_one_core(meshes):
+    """A worker given one thread must leave the other cores to the other workers: Blender's TBB
+    pool is sized at import, and its idle workers spin (measured 1.9 cores used before the fix)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    tests = str(Path(__file__).resolve().parent)
+    # One BLAS thread, as in a build's workers (specsynth.tasks.Worker), so only Cycles is measured.
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    r = subprocess.run([sys.executable, "-c", _ONE_CORE, json.dumps(meshes), tests, str(Path(tests).parent)],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr[-2000:]
+    cores = float(r.stdout.strip().splitlines()[-1])
+    assert cores < 1.25, f"a 1-thread Cycles worker kept {cores:.2f} cores busy"

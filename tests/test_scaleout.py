@@ -56,6 +56,8 @@ def test_dask_local_cluster_gives_the_same_bytes(spec_file, reference, tmp_path)
     pytest.importorskip("distributed")
     s = build(compile_spec(load_spec(spec_file)), tmp_path / "dask", executor="dask", jobs=2)
     assert not s.failures, s.failures
+    trace = json.loads((tmp_path / "dask" / ".specsynth" / "trace.json").read_text())["traceEvents"]
+    assert s.workers == 2 and {e["tid"] for e in trace if e["ph"] == "X"} == {0, 1}  # both worked
     a, b = tree_digest(tmp_path / "dask"), tree_digest(reference)
     assert a == b, sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))[:10]
 

@@ -21,7 +21,7 @@ from specsynth.conventions import opencv_to_blender_c2w
 from specsynth.ir import CameraIR, RenderResult, RenderScene
 from specsynth.spec import QualityPreset
 
-from .settings import PathSettings, blender_intrinsics, coerce_options, path_settings, resolve_threads
+from .settings import PathSettings, blender_intrinsics, coerce_options, path_settings, resolve_threads, tbb_sized_to
 
 __all__ = ["CyclesBackend"]
 
@@ -66,11 +66,12 @@ class CyclesBackend:
     draws_scene: ClassVar[bool] = True
 
     def __init__(self, options: Any = None, *, threads: int = 0) -> None:
-        import bpy  # once per worker process; the core never imports bpy
-
-        self._bpy = bpy
         self.options = coerce_options(options)
         self.threads = resolve_threads(self.options, threads)
+        with tbb_sized_to(self.threads):
+            import bpy  # once per worker process; the core never imports bpy
+
+        self._bpy = bpy
         self._tmp = Path(tempfile.mkdtemp(prefix="specsynth-cycles-"))
         self._scene_ir: RenderScene | None = None
         bpy.ops.wm.read_factory_settings(use_empty=True)

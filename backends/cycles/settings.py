@@ -6,8 +6,9 @@ Pure functions without bpy so that the mapping can be unit-tested (and documente
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -37,6 +38,32 @@ def resolve_threads(options: CyclesOptions, threads: int) -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - non-Linux
         return os.cpu_count() or 1
+
+
+@contextmanager
+def tbb_sized_to(threads: int) -> Iterator[None]:
+    """Import bpy inside this so that Blender's TBB pool has ``threads`` threads, not one per core.
+
+    Blender creates its TBB pool when bpy is imported, sized from the process's CPU affinity, and
+    ``render.threads`` does not shrink it. With one render thread on a 2-core machine the idle TBB
+    worker spins in ``sched_yield`` whenever Cycles runs a parallel step (BVH build, background
+    importance map): measured 15 s of system CPU in a 19 s build, taken from the other worker
+    when two run side by side. Narrowing the affinity for the import only sizes that pool; the
+    mask is restored at once, so the render threads may still run on any core.
+    """
+    try:
+        full = os.sched_getaffinity(0)
+    except (AttributeError, OSError):  # pragma: no cover - non-Linux: nothing to narrow
+        yield
+        return
+    if not 0 < threads < len(full):
+        yield
+        return
+    os.sched_setaffinity(0, sorted(full)[:threads])
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, full)
 
 
 def preset_samples(q: QualityPreset) -> int:
