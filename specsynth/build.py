@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterator
 from . import keys
 from .backend_api import load_executor
 from .compiler import STAGES, JobGraph
-from .records import ArrangementRecord, ImageRecord, ViewRecord
+from .records import ImageRecord
 from .store import Store, write_json
 
 # Rough seconds per job on a 2-core machine (../shared/measurements.md), for `plan` estimates only.
@@ -268,8 +268,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     with output_lock(out):
         store = Store(out)
         store.clean_tmp()
-        threads = threads or max(1, (os.cpu_count() or 1) // max(1, jobs))
-        ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads)
+        ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads or 0)
         wkey = str(ctx.out)  # which worker state a task uses (one Dask worker may serve several builds)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         workers = max(1, getattr(ex, "workers", jobs))

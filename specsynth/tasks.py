@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +36,11 @@ class BuildContext:
     spec: DatasetSpec
     spec_dir: Path
     out: Path
-    threads: int = 0  # renderer threads per worker; 0 = all cores
+    threads: int = 0  # renderer threads per worker; 0 = the executor decides (its cores per worker)
+
+    def with_threads(self, threads: int) -> "BuildContext":
+        """This context with ``threads`` unless the user gave a count."""
+        return self if self.threads else replace(self, threads=max(1, int(threads)))
 
 
 class Worker:

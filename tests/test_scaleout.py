@@ -123,7 +123,10 @@ def _free_port() -> int:
 
 
 def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
-    """The documented setup: `dask scheduler` + `dask worker` processes, then --executor dask://HOST:PORT."""
+    """The documented setup: `dask scheduler` + `dask worker` processes, then --executor dask://HOST:PORT.
+
+    Workers with --nthreads 2, so Dask hands each process two jobs at once: they must run one at a
+    time (a worker's renderer and loaded arrangement are process-wide), with the bytes unchanged."""
     pytest.importorskip("distributed")
     bindir = Path(sys.executable).parent
     port = _free_port()
@@ -131,7 +134,7 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
                                "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
         procs.append(subprocess.Popen([str(bindir / "dask"), "worker", f"tcp://127.0.0.1:{port}", "--nworkers", "2",
-                                       "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+                                       "--nthreads", "2", "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 
         with Client(f"tcp://127.0.0.1:{port}", timeout=60) as c:
@@ -145,3 +148,19 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_local_workers_split_the_cores_unless_told(spec_file, tmp_path):
+    from dataclasses import replace
+
+    from specsynth.executors.local import LocalExecutor, _cores
+    from specsynth.tasks import BuildContext
+
+    g = compile_spec(load_spec(spec_file))
+    ctx = BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path)
+    for jobs, given, expected in ((2, 0, max(1, _cores() // 2)), (2, 3, 3), (1, 0, 0)):  # 0: all cores
+        ex = LocalExecutor(replace(ctx, threads=given), jobs=jobs)
+        try:
+            assert ex._ctx.threads == expected
+        finally:
+            ex.shutdown()

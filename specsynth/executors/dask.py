@@ -9,8 +9,13 @@ of ``--jobs`` single-threaded worker processes is started (useful for tests and 
 from __future__ import annotations
 
 import hashlib
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 from .. import tasks
+
+
+JOB_EXECUTOR = "specsynth"  # the name of each worker's job thread among its Dask executors
 
 
 def _plugin_class():
@@ -23,11 +28,18 @@ def _plugin_class():
             self.name = f"specsynth-warm-{hashlib.sha256(str(ctx.out).encode()).hexdigest()[:12]}"
 
         def setup(self, worker):
-            # Dask sets OMP_NUM_THREADS=1 in workers; renderers get an explicit count instead.
-            tasks.init_worker(self.ctx)
+            # Every specsynth job of this worker process runs on one thread of its own (the
+            # executor protocol: process-wide renderer, thread-bound OpenGL contexts), whatever
+            # --nthreads the worker has; builds sharing the worker share that thread.
+            if JOB_EXECUTOR not in worker.executors:
+                worker.executors[JOB_EXECUTOR] = ThreadPoolExecutor(1, thread_name_prefix="specsynth-job")
+            # Dask sets OMP_NUM_THREADS=1 in workers; renderers get an explicit count instead: the
+            # worker's --nthreads (the cores it was given), unless the build passed --threads.
+            tasks.init_worker(self.ctx.with_threads(worker.state.nthreads))
 
         def teardown(self, worker):
-            tasks.close_worker(str(self.ctx.out))
+            # On the job thread: an OpenGL context is released by the thread that holds it.
+            worker.executors[JOB_EXECUTOR].submit(tasks.close_worker, str(self.ctx.out)).result()
 
     return WarmWorker
 
@@ -42,6 +54,8 @@ class DaskExecutor:
         if address:
             self.client = Client(address if "://" in address else f"tcp://{address}")
         else:
+            # Single-threaded Dask workers, the machine's cores split between them for rendering.
+            ctx = ctx.with_threads((os.cpu_count() or 1) // max(1, jobs))
             self._cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=40)
             self.client = Client(self._cluster)
@@ -50,8 +64,11 @@ class DaskExecutor:
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})) or jobs)
 
     def submit(self, fn, *args):
+        import dask
+
         # pure=False: a retry must run again, not return a cached failure.
-        return self.client.submit(fn, *args, pure=False)
+        with dask.annotate(executor=JOB_EXECUTOR):
+            return self.client.submit(fn, *args, pure=False)
 
     def shutdown(self) -> None:
         if self._cluster is None:  # a shared cluster: leave its workers, drop this build's state
