@@ -11,8 +11,9 @@ is the steady state a long build runs at, with the once-per-build costs (start-u
 merge's fixed part) cancelled out. The machine's own ceiling is measured too: the same CPU-bound
 work in one process, then in two processes at once. Goal (issue): >= 1.8x one worker with two.
 
-Each build is run --repeats times (sizes interleaved) and the median is reported, with the 2N
-runs listed: single-worker times on this VM vary by up to 12 % within an hour. "Cores used" is the
+Builds run in --repeats rounds, each round every configuration once, and speed-ups are taken
+within a round (then their median reported): on this shared VM a single-worker build's time
+drifts by up to 15 % within an hour, which would otherwise land on whichever row ran then. "Cores used" is the
 CPU time of the build and every process it started over its wall time: a 1-thread worker that
 uses more than one core is not a one-core baseline (Blender's TBB pool and OpenBLAS's threads
 spin on idle cores unless sized; see docs/scaleout.md). "Workers busy" is the share of the run
@@ -25,6 +26,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -99,53 +101,66 @@ def _run_builds(spec: Path, outs: list[Path], executor: str, jobs: int, threads:
     return wall, images, cpu, summary["utilisation"] if len(outs) == 1 else None
 
 
+CONFIGS = (  # label, executor, jobs, threads, copies
+    ("local, 1 worker x 1 thread", "local", 1, 1, 1),
+    ("local, 1 worker x 2 threads", "local", 1, 2, 1),
+    ("local, 2 workers x 1 thread", "local", 2, 1, 1),
+    ("Dask LocalCluster, 2 workers x 1 thread", "dask", 2, 1, 1),
+    # No scheduler at all: the workload's own ceiling on this machine.
+    ("two independent 1-worker builds at once", "local", 1, 1, 2),
+)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--arrangements", type=int, default=24, help="N: builds of N and 2N arrangements")
     ap.add_argument("--backend", default="photo", help="photo (physics/annotation-bound) or cycles (render-bound)")
-    ap.add_argument("--repeats", type=int, default=3, help="runs of each build; the median is reported")
+    ap.add_argument("--repeats", type=int, default=3, help="rounds of every build; medians are reported")
     args = ap.parse_args()
     common = [f"backend={{name: {args.backend}}}", "intrinsics={width: 320, height: 240, fx: 286.2, fy: 286.8, cx: 162.4, cy: 120.8}"]
     graph = compile_spec(load_spec(ROOT / "specs/demo.yaml", common))
-    rows = []
+    sizes = (args.arrangements, 2 * args.arrangements)
+    runs: dict[tuple[str, int], list] = {}
     with tempfile.TemporaryDirectory() as d:
         ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=Path(d) / "ctx")
         spec = Path(d) / "spec.yaml"
         spec.write_text((ROOT / "specs/demo.yaml").read_text())
-        for label, executor, jobs, threads, copies in (
-            ("local, 1 worker x 1 thread", "local", 1, 1, 1),
-            ("local, 1 worker x 2 threads", "local", 1, 2, 1),
-            ("local, 2 workers x 1 thread", "local", 2, 1, 1),
-            ("Dask LocalCluster, 2 workers x 1 thread", "dask", 2, 1, 1),
-            # No scheduler at all: the workload's own ceiling on this machine.
-            ("two independent 1-worker builds at once", "local", 1, 1, 2),
-        ):
-            runs = {}
-            for rep in range(args.repeats):  # sizes interleaved, so a slow minute hits both
-                for n in (args.arrangements, 2 * args.arrangements):
+        # Rounds: every configuration once per round, so a slow minute of this shared VM hits a
+        # round's builds alike; speed-ups are taken within a round, then their median reported.
+        for rep in range(args.repeats):
+            for label, executor, jobs, threads, copies in CONFIGS:
+                for n in sizes:
                     outs = [Path(d) / f"{label.replace(' ', '_').replace(',', '')}_{n}_{c}" for c in range(copies)]
-                    runs.setdefault(n, []).append(_run_builds(spec, outs, executor, jobs, threads, [*common, f"arrangements.count={n}"]))
-                    print(f"  {label}, {n} arrangements, run {rep + 1}: {runs[n][-1][0]:.1f} s", file=sys.stderr)
-            (w1, i1, _, _), (w2, i2, cpu2, util2) = (_median_run(runs[n]) for n in sorted(runs))
-            spread = [round(r[0], 1) for r in runs[2 * args.arrangements]]
-            rows.append((label, w1, i1, w2, i2, 60 * (i2 - i1) / (w2 - w1), cpu2, util2, spread,
-                         overhead(executor, jobs, ctx) if copies == 1 else None))
+                    r = _run_builds(spec, outs, executor, jobs, threads, [*common, f"arrangements.count={n}"])
+                    runs.setdefault((label, n), []).append(r)
+                    print(f"  round {rep + 1}: {label}, {n} arrangements: {r[0]:.1f} s", file=sys.stderr)
+        overheads = {label: overhead(executor, jobs, ctx) for label, executor, jobs, _, copies in CONFIGS if copies == 1}
     ceiling = machine_ceiling()
-    base, base_m = rows[0][4] / rows[0][3], rows[0][5]
-    print(f"{args.backend} backend at 320x240, builds of {args.arrangements} and {2 * args.arrangements} arrangements "
-          f"({rows[0][2]} and {rows[0][4]} images), {os.cpu_count()} cores, median of {args.repeats} runs; two "
-          f"independent CPU-bound processes on this machine: {ceiling:.2f}x one")
-    print("| executor | wall s (N / 2N) | 2N runs | speed-up, end to end | speed-up, marginal | cores used (CPU s / wall) | "
-          "workers busy | overhead per job (no-op round trip) |")
+    base = CONFIGS[0][0]
+
+    def rate(label, k, marginal):  # images per second in round k
+        (w1, i1, _, _), (w2, i2, _, _) = (runs[(label, n)][k] for n in sizes)
+        return (i2 - i1) / (w2 - w1) if marginal else i2 / w2
+
+    def speedup(label, marginal):
+        return statistics.median(rate(label, k, marginal) / rate(base, k, marginal) for k in range(args.repeats))
+
+    n_images = [runs[(base, n)][0][1] for n in sizes]
+    print(f"{args.backend} backend at 320x240, builds of {sizes[0]} and {sizes[1]} arrangements ({n_images[0]} and "
+          f"{n_images[1]} images), {os.cpu_count()} cores, {args.repeats} rounds; two independent CPU-bound "
+          f"processes on this machine: {ceiling:.2f}x one")
+    print("| executor | wall s, median (N / 2N) | 2N runs | speed-up, end to end | speed-up, marginal | "
+          "cores used (CPU s / wall) | workers busy | overhead per job (no-op round trip) |")
     print("|---|---|---|---|---|---|---|---|")
-    for label, w1, i1, w2, i2, marginal, cpu2, util2, spread, ov in rows:
-        print(f"| {label} | {w1:.1f} / {w2:.1f} | {', '.join(map(str, spread))} | {i2 / w2 / base:.2f}x | "
-              f"{marginal / base_m:.2f}x | {cpu2 / w2:.2f} | {'—' if util2 is None else f'{100 * util2:.1f} %'} | "
+    for label, *_ in CONFIGS:
+        w1, w2 = (statistics.median(r[0] for r in runs[(label, n)]) for n in sizes)
+        big = runs[(label, sizes[1])]
+        cores = statistics.median(r[2] / r[0] for r in big)
+        util = [r[3] for r in big if r[3] is not None]
+        ov = overheads.get(label)
+        print(f"| {label} | {w1:.1f} / {w2:.1f} | {', '.join(f'{r[0]:.1f}' for r in big)} | {speedup(label, False):.2f}x | "
+              f"{speedup(label, True):.2f}x | {cores:.2f} | {f'{100 * statistics.median(util):.1f} %' if util else '—'} | "
               f"{'—' if ov is None else f'{1000 * ov:.2f} ms'} |")
-
-
-def _median_run(runs):
-    return sorted(runs, key=lambda r: r[0])[len(runs) // 2]
 
 
 if __name__ == "__main__":

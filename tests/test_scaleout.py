@@ -122,6 +122,33 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _settings_probe():
+    """What a worker runs to report its settings (a closure: pickled by value, no test imports)."""
+
+    def settings():
+        import os
+
+        import dask
+
+        return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled")
+
+    return settings
+
+
+def test_local_cluster_workers_get_specsynth_dask_settings(spec_file, tmp_path):
+    """No malloc trim threshold (it turns off glibc's adaptive mmap threshold), no profiler."""
+    pytest.importorskip("distributed")
+    from specsynth.executors.dask import DaskExecutor
+    from specsynth.tasks import BuildContext
+
+    g = compile_spec(load_spec(spec_file))
+    ex = DaskExecutor(BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path), jobs=2)
+    try:
+        assert list(ex.client.run(_settings_probe()).values()) == [(None, False)] * 2
+    finally:
+        ex.shutdown()
+
+
 def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
     """The documented setup: `dask scheduler` + `dask worker` processes, then --executor dask://HOST:PORT.
 
@@ -133,12 +160,17 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
     procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
                                "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
+        from specsynth.executors.dask import CONFIG_DIR
+
+        env = {**os.environ, "DASK_CONFIG": str(CONFIG_DIR)}  # as docs/scaleout.md says
         procs.append(subprocess.Popen([str(bindir / "dask"), "worker", f"tcp://127.0.0.1:{port}", "--nworkers", "2",
-                                       "--nthreads", "2", "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+                                       "--nthreads", "2", "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 
         with Client(f"tcp://127.0.0.1:{port}", timeout=60) as c:
             c.wait_for_workers(2, timeout=120)
+            assert list(c.run(_settings_probe()).values()) == [(None, False)] * 2
         cli_build(spec_file, tmp_path / "remote", "--executor", f"dask://127.0.0.1:{port}")
         assert tree_digest(tmp_path / "remote") == tree_digest(reference)
     finally:

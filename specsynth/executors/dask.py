@@ -11,10 +11,12 @@ from __future__ import annotations
 import hashlib
 import os
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 from .. import tasks
 
 
+CONFIG_DIR = Path(__file__).with_name("dask_config")  # Dask settings for workers (DASK_CONFIG)
 JOB_EXECUTOR = "specsynth"  # the name of each worker's job thread among its Dask executors
 
 
@@ -56,8 +58,12 @@ class DaskExecutor:
         else:
             # Single-threaded Dask workers, the machine's cores split between them for rendering.
             ctx = ctx.with_threads((os.cpu_count() or 1) // max(1, jobs))
-            self._cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
-                                         dashboard_address=None, silence_logs=40)
+            import dask
+            import yaml
+
+            with dask.config.set(_dotted(yaml.safe_load((CONFIG_DIR / "specsynth.yaml").read_text()))):
+                self._cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
+                                             dashboard_address=None, silence_logs=40)
             self.client = Client(self._cluster)
         self._plugin = _plugin_class()(ctx)
         self.client.register_plugin(self._plugin)
@@ -79,3 +85,14 @@ class DaskExecutor:
         self.client.close()
         if self._cluster is not None:
             self._cluster.close()
+
+
+def _dotted(tree: dict, prefix: str = "") -> dict:
+    """Nested settings as dotted keys: ``dask.config.set`` replaces whole subtrees given nested."""
+    out = {}
+    for k, v in tree.items():
+        if isinstance(v, dict):
+            out.update(_dotted(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
