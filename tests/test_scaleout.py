@@ -196,3 +196,20 @@ def test_local_workers_split_the_cores_unless_told(spec_file, tmp_path):
             assert ex._ctx.threads == expected
         finally:
             ex.shutdown()
+
+
+def test_slurm_example_job_script():
+    """The Slurm example's job script, as dask-jobqueue would submit it (no Slurm here to run it)."""
+    pytest.importorskip("dask_jobqueue")
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        from slurm_build import make_cluster
+    finally:
+        sys.path.remove(str(ROOT / "examples"))
+    from specsynth.executors.dask import CONFIG_DIR
+
+    with make_cluster(cores=16, scheduler_options={"host": "127.0.0.1"}) as cluster:
+        script = cluster.job_script()
+    assert f"export DASK_CONFIG={CONFIG_DIR}" in script
+    assert "--nworkers 16" in script and "--nthreads 1" in script and "#SBATCH --exclusive" in script
+    assert "#SBATCH -n 1" in script and "#SBATCH --cpus-per-task=16" in script
