@@ -361,12 +361,13 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         finally:
             ex.shutdown()
         summary.workers = workers
+        t_first = min((sp[4] for sp in spans), default=0.0)
         if spans:
-            t_first = min(sp[4] for sp in spans)
             summary.run_seconds = max(sp[4] + sp[5] for sp in spans) - t_first
             busy = sum(sp[5] for sp in spans)
             summary.utilisation = round(busy / (workers * summary.run_seconds), 3) if summary.run_seconds else 1.0
-            write_json(out / ".specsynth" / "trace.json", _trace(spans, t_first), indent=None)
+        # Always written: a rebuild that ran nothing must not leave the previous build's timeline.
+        write_json(out / ".specsynth" / "trace.json", _trace(spans, t_first), indent=None)
         summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))
         if until == "view":
             return summary

@@ -256,6 +256,14 @@ def test_timeline_covers_every_job_the_build_ran(built):
     assert 0 < s.utilisation <= 1 and s.run_seconds <= s.wall_seconds
 
 
+def test_a_rebuild_that_runs_nothing_leaves_no_stale_timeline(spec_file, tmp_path):
+    out = tmp_path / "again"
+    build(graph(spec_file), out, jobs=1)
+    s = build(graph(spec_file), out, jobs=1)  # everything cached
+    trace = json.loads((out / ".specsynth" / "trace.json").read_text())
+    assert trace["traceEvents"] == [] and s.run_seconds == 0
+
+
 def test_workers_use_one_blas_thread_and_give_it_back(spec_file, tmp_path):
     from threadpoolctl import threadpool_info
 
