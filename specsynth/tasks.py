@@ -311,6 +311,14 @@ def init_worker(ctx: BuildContext) -> None:
     _workers[str(ctx.out)] = Worker(ctx)
 
 
+def available_cores() -> int:
+    """Cores this process may run on: a container or a batch system may give fewer than cpu_count."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - non-Linux
+        return os.cpu_count() or 1
+
+
 def current_worker(out: str) -> Worker:
     try:
         return _workers[str(out)]

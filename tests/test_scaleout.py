@@ -185,12 +185,12 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
 def test_local_workers_split_the_cores_unless_told(spec_file, tmp_path):
     from dataclasses import replace
 
-    from specsynth.executors.local import LocalExecutor, _cores
-    from specsynth.tasks import BuildContext
+    from specsynth.executors.local import LocalExecutor
+    from specsynth.tasks import BuildContext, available_cores
 
     g = compile_spec(load_spec(spec_file))
     ctx = BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path)
-    for jobs, given, expected in ((2, 0, max(1, _cores() // 2)), (2, 3, 3), (1, 0, 0)):  # 0: all cores
+    for jobs, given, expected in ((2, 0, max(1, available_cores() // 2)), (2, 3, 3), (1, 0, 0)):  # 0: all cores
         ex = LocalExecutor(replace(ctx, threads=given), jobs=jobs)
         try:
             assert ex._ctx.threads == expected

@@ -9,7 +9,6 @@ of ``--jobs`` single-threaded worker processes is started (useful for tests and 
 from __future__ import annotations
 
 import hashlib
-import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -41,7 +40,10 @@ def _plugin_class():
 
         def teardown(self, worker):
             # On the job thread: an OpenGL context is released by the thread that holds it.
-            worker.executors[JOB_EXECUTOR].submit(tasks.close_worker, str(self.ctx.out)).result()
+            try:
+                worker.executors[JOB_EXECUTOR].submit(tasks.close_worker, str(self.ctx.out)).result()
+            except (KeyError, RuntimeError):  # the worker is closing and its job thread is gone
+                tasks.close_worker(str(self.ctx.out))
 
     return WarmWorker
 
@@ -57,7 +59,7 @@ class DaskExecutor:
             self.client = Client(address if "://" in address else f"tcp://{address}")
         else:
             # Single-threaded Dask workers, the machine's cores split between them for rendering.
-            ctx = ctx.with_threads((os.cpu_count() or 1) // max(1, jobs))
+            ctx = ctx.with_threads(tasks.available_cores() // max(1, jobs))
             import dask
             import yaml
 

@@ -7,7 +7,6 @@ depend on the number of workers: every job's output is a function of its inputs 
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
@@ -18,7 +17,7 @@ class LocalExecutor:
     def __init__(self, ctx: tasks.BuildContext, *, jobs: int = 1, address: str | None = None):
         self.workers = max(1, int(jobs))
         # The machine's cores split between the workers (one worker: all of them).
-        self._ctx = ctx.with_threads(_cores() // self.workers) if self.workers > 1 else ctx
+        self._ctx = ctx.with_threads(tasks.available_cores() // self.workers) if self.workers > 1 else ctx
         self._pool = None
         if self.workers == 1:
             tasks.init_worker(ctx)
@@ -56,9 +55,3 @@ class LocalExecutor:
         else:
             tasks.close_worker(str(self._ctx.out))
 
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))  # a container may give this process fewer than cpu_count
-    except (AttributeError, OSError):  # pragma: no cover - non-Linux
-        return os.cpu_count() or 1
