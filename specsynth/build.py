@@ -159,7 +159,7 @@ class Call:
     def priority(self) -> tuple[bool, int, int]:
         # Arrangements first, then later stages, then older arrangements. Physics is the long,
         # unpredictable job (p90 2-3 s per arrangement): run last, one settling left a worker idle
-        # ~2 s at the end of a 20 s build (measured; 96 % of the run busy, 99.5 % this way). Its
+        # ~2 s at the end of a 20 s build (measured: 94-96 % of the run busy, 99.5 % this way). Its
         # cameras and images then follow as each arrangement settles, and an arrangement's renders
         # go before the next one's cameras, so the workers' loaded scenes are reused.
         return (self.stage != "arrange", STAGES[::-1].index(self.stage), self.arr)
