@@ -16,7 +16,7 @@ import pytest
 
 from specsynth.cameras import look_at
 from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
-from specsynth.meshio import MeshData, write_mesh
+from specsynth.meshio import MeshData
 from specsynth.spec import QualityPreset
 
 from backends.mitsuba import mapping, scene as mscene
@@ -82,18 +82,7 @@ def backend(mitsuba_backend):
     return mitsuba_backend
 
 
-def _write(tmp, name, mesh: MeshData) -> str:
-    p = tmp / f"{name}.ply"
-    write_mesh(p, mesh)
-    return str(p)
-
-
-def _sphere(tmp) -> str:
-    import trimesh
-
-    s = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
-    return _write(tmp, "sphere", MeshData(vertices=s.vertices.astype(np.float32), faces=s.faces.astype(np.int32),
-                                          normals=s.vertex_normals.astype(np.float32)))
+from test_mitsuba import _sphere, _write  # noqa: E402  (after the importorskip above)
 
 
 def _quad(tmp, half: float) -> str:
