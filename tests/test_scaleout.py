@@ -130,13 +130,33 @@ def _settings_probe():
 
         import dask
 
-        return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled")
+        return (os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled"),
+                dask.config.get("distributed.admin.tick.interval"),
+                dask.config.get("distributed.worker.memory.monitor-interval"))
 
     return settings
 
 
+SPECSYNTH_DASK = (None, False, "1s", "1s")  # what _settings_probe reports under specsynth.yaml
+
+
+def test_specsynth_dask_settings_are_dask_settings():
+    """A misspelt key would be accepted by Dask and do nothing."""
+    pytest.importorskip("distributed")
+    import dask
+    import distributed  # noqa: F401  (loads Dask's defaults for its keys)
+    import yaml
+
+    from specsynth.executors.dask import CONFIG_DIR, _dotted
+
+    ours = _dotted(yaml.safe_load((CONFIG_DIR / "specsynth.yaml").read_text()))
+    missing = "<not a Dask setting>"
+    assert {k: dask.config.get(k, missing) for k in ours if dask.config.get(k, missing) == missing} == {}
+
+
 def test_local_cluster_workers_get_specsynth_dask_settings(spec_file, tmp_path):
-    """No malloc trim threshold (it turns off glibc's adaptive mmap threshold), no profiler."""
+    """No malloc trim threshold (it turns off glibc's adaptive mmap threshold), no profiler, slower
+    housekeeping timers."""
     pytest.importorskip("distributed")
     from specsynth.executors.dask import DaskExecutor
     from specsynth.tasks import BuildContext
@@ -144,7 +164,7 @@ def test_local_cluster_workers_get_specsynth_dask_settings(spec_file, tmp_path):
     g = compile_spec(load_spec(spec_file))
     ex = DaskExecutor(BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path), jobs=2)
     try:
-        assert list(ex.client.run(_settings_probe()).values()) == [(None, False)] * 2
+        assert list(ex.client.run(_settings_probe()).values()) == [SPECSYNTH_DASK] * 2
     finally:
         ex.shutdown()
 
@@ -170,7 +190,7 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
 
         with Client(f"tcp://127.0.0.1:{port}", timeout=60) as c:
             c.wait_for_workers(2, timeout=120)
-            assert list(c.run(_settings_probe()).values()) == [(None, False)] * 2
+            assert list(c.run(_settings_probe()).values()) == [SPECSYNTH_DASK] * 2
         cli_build(spec_file, tmp_path / "remote", "--executor", f"dask://127.0.0.1:{port}")
         assert tree_digest(tmp_path / "remote") == tree_digest(reference)
     finally:
