@@ -1,4 +1,4 @@
-"""Throughput of one build with 1 and 2 local workers and a 2-worker Dask LocalCluster, and the
+"""Throughput of one build with 1 and 2 local workers and a 1- and 2-worker Dask LocalCluster, and the
 per-job overhead of each executor (a no-op job's round trip).
 
     .venv/bin/python benchmarks/bench_executors.py [--arrangements 24] [--backend photo] [--repeats 3]
@@ -8,7 +8,10 @@ and rendering all run in the workers). Every build runs in a fresh process, time
 (process and worker start-up included), at N and 2N arrangements: the end-to-end rate is what one
 build of that size gets; the marginal rate (extra images / extra seconds between the two sizes)
 is the steady state a long build runs at, with the once-per-build costs (start-up, imports, the
-merge's fixed part) cancelled out. The machine's own ceiling is measured too: the same CPU-bound
+merge's fixed part) cancelled out, but it divides two noisy differences. The run-phase rate is
+the 2N build's images over its run seconds (its first job's start to its last job's end, from the
+build's summary): the same steady state from one build, without the start-up and the merge.
+The 1-worker LocalCluster row separates Dask's fixed costs from how it scales. The machine's own ceiling is measured too: the same CPU-bound
 work in one process, then in two processes at once. Goal (issue): >= 1.8x one worker with two.
 
 Builds run in --repeats rounds, each round every configuration once, and speed-ups are taken
@@ -80,7 +83,8 @@ def machine_ceiling(n: int = 3_000_000) -> float:
 
 def _run_builds(spec: Path, outs: list[Path], executor: str, jobs: int, threads: int, overrides: list[str]):
     """Wall seconds, images, CPU seconds (the builds and every process they started) and, for a
-    single build, the run's worker utilisation from its summary."""
+    single build, the run's worker utilisation and run seconds (first job's start to last job's
+    end) from its summary."""
     import resource
 
     for out in outs:
@@ -98,13 +102,15 @@ def _run_builds(spec: Path, outs: list[Path], executor: str, jobs: int, threads:
     images = sum(len(list(out.glob("bop/*/*/rgb/*"))) for out in outs)
     summary = json.loads((outs[0] / ".specsynth" / "summary.json").read_text())
     cpu = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
-    return wall, images, cpu, summary["utilisation"] if len(outs) == 1 else None
+    single = len(outs) == 1
+    return wall, images, cpu, summary["utilisation"] if single else None, summary["run_seconds"] if single else None
 
 
 CONFIGS = (  # label, executor, jobs, threads, copies
     ("local, 1 worker x 1 thread", "local", 1, 1, 1),
     ("local, 1 worker x 2 threads", "local", 1, 2, 1),
     ("local, 2 workers x 1 thread", "local", 2, 1, 1),
+    ("Dask LocalCluster, 1 worker x 1 thread", "dask", 1, 1, 1),
     ("Dask LocalCluster, 2 workers x 1 thread", "dask", 2, 1, 1),
     # No scheduler at all: the workload's own ceiling on this machine.
     ("two independent 1-worker builds at once", "local", 1, 1, 2),
@@ -138,28 +144,30 @@ def main() -> None:
     ceiling = machine_ceiling()
     base = CONFIGS[0][0]
 
-    def rate(label, k, marginal):  # images per second in round k
-        (w1, i1, _, _), (w2, i2, _, _) = (runs[(label, n)][k] for n in sizes)
-        return (i2 - i1) / (w2 - w1) if marginal else i2 / w2
+    def rate(label, k, how):  # images per second in round k
+        (w1, i1, *_), (w2, i2, _, _, run2) = (runs[(label, n)][k] for n in sizes)
+        return {"marginal": (i2 - i1) / (w2 - w1), "end to end": i2 / w2, "run": i2 / run2 if run2 else None}[how]
 
-    def speedup(label, marginal):
-        return statistics.median(rate(label, k, marginal) / rate(base, k, marginal) for k in range(args.repeats))
+    def speedup(label, how):
+        ratios = [rate(label, k, how) / rate(base, k, how) for k in range(args.repeats) if rate(label, k, how)]
+        return f"{statistics.median(ratios):.2f}x" if ratios else "—"
 
     n_images = [runs[(base, n)][0][1] for n in sizes]
     print(f"{args.backend} backend at 320x240, builds of {sizes[0]} and {sizes[1]} arrangements ({n_images[0]} and "
           f"{n_images[1]} images), {os.cpu_count()} cores, {args.repeats} rounds; two independent CPU-bound "
           f"processes on this machine: {ceiling:.2f}x one")
     print("| executor | wall s, median (N / 2N) | 2N runs | speed-up, end to end | speed-up, marginal | "
-          "cores used (CPU s / wall) | workers busy | overhead per job (no-op round trip) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "speed-up, run phase | cores used (CPU s / wall) | workers busy | overhead per job (no-op round trip) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for label, *_ in CONFIGS:
         w1, w2 = (statistics.median(r[0] for r in runs[(label, n)]) for n in sizes)
         big = runs[(label, sizes[1])]
         cores = statistics.median(r[2] / r[0] for r in big)
         util = [r[3] for r in big if r[3] is not None]
         ov = overheads.get(label)
-        print(f"| {label} | {w1:.1f} / {w2:.1f} | {', '.join(f'{r[0]:.1f}' for r in big)} | {speedup(label, False):.2f}x | "
-              f"{speedup(label, True):.2f}x | {cores:.2f} | {f'{100 * statistics.median(util):.1f} %' if util else '—'} | "
+        print(f"| {label} | {w1:.1f} / {w2:.1f} | {', '.join(f'{r[0]:.1f}' for r in big)} | {speedup(label, 'end to end')} | "
+              f"{speedup(label, 'marginal')} | {speedup(label, 'run')} | {cores:.2f} | "
+              f"{f'{100 * statistics.median(util):.1f} %' if util else '—'} | "
               f"{'—' if ov is None else f'{1000 * ov:.2f} ms'} |")
 
 
