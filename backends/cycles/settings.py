@@ -50,6 +50,10 @@ def tbb_sized_to(threads: int) -> Iterator[None]:
     importance map): measured 15 s of system CPU in a 19 s build, taken from the other worker
     when two run side by side. Narrowing the affinity for the import only sizes that pool; the
     mask is restored at once, so the render threads may still run on any core.
+
+    TBB reads the mask of the process's main thread, not of the importing thread: a Dask worker
+    imports bpy on its job thread, and narrowing that thread alone left the pool at one thread
+    per core (1.84 cores used by a 1-thread render loop). Both threads are narrowed.
     """
     try:
         full = os.sched_getaffinity(0)
@@ -59,11 +63,15 @@ def tbb_sized_to(threads: int) -> Iterator[None]:
     if not 0 < threads < len(full):
         yield
         return
-    os.sched_setaffinity(0, sorted(full)[:threads])
+    tids = {0, os.getpid()}  # this thread, and the main thread (whose id is the pid)
+    saved = {t: os.sched_getaffinity(t) for t in tids}
+    for t in tids:
+        os.sched_setaffinity(t, sorted(full)[:threads])
     try:
         yield
     finally:
-        os.sched_setaffinity(0, full)
+        for t, mask in saved.items():
+            os.sched_setaffinity(t, mask)
 
 
 def preset_samples(q: QualityPreset) -> int:
