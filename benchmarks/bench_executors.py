@@ -11,15 +11,16 @@ is the steady state a long build runs at, with the once-per-build costs (start-u
 merge's fixed part) cancelled out, but it divides two noisy differences. The run-phase rate is
 the 2N build's images over its run seconds (its first job's start to its last job's end, from the
 build's summary): the same steady state from one build, without the start-up and the merge.
-The 1-worker LocalCluster row separates Dask's fixed costs from how it scales. The machine's own ceiling is measured too: the same CPU-bound
-work in one process, then in two processes at once. Goal (issue): >= 1.8x one worker with two.
+The 1-worker LocalCluster row separates Dask's fixed costs from how it scales. The machine's own
+ceiling is measured too: the same CPU-bound work in one process, then in two processes at once.
+Goal (issue): >= 1.8x one worker with two.
 
 Builds run in --repeats rounds, each round every configuration once, and speed-ups are taken
 within a round (then their median reported): on this shared VM a single-worker build's time
-drifts by up to 15 % within an hour, which would otherwise land on whichever row ran then. "Cores used" is the
-CPU time of the build and every process it started over its wall time: a 1-thread worker that
-uses more than one core is not a one-core baseline (Blender's TBB pool and OpenBLAS's threads
-spin on idle cores unless sized; see docs/scaleout.md). "Workers busy" is the share of the run
+drifts by up to 15 % within an hour, which would otherwise land on whichever row ran then.
+"Cores used" is the CPU time of the build and every process it started over its wall time: a
+1-thread worker that uses more than one core is not a one-core baseline (Blender's TBB pool and
+OpenBLAS's threads spin on idle cores unless sized; see docs/scaleout.md). "Workers busy" is the share of the run
 (first job's start to last job's end) the workers spent in jobs, from the build's summary.
 """
 

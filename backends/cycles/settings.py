@@ -53,7 +53,8 @@ def tbb_sized_to(threads: int) -> Iterator[None]:
 
     TBB reads the mask of the process's main thread, not of the importing thread: a Dask worker
     imports bpy on its job thread, and narrowing that thread alone left the pool at one thread
-    per core (1.84 cores used by a 1-thread render loop). Both threads are narrowed.
+    per core (1.84 cores used by a 1-thread render loop). Both threads are narrowed. A thread
+    started meanwhile would keep the narrowed mask; the import takes about a second.
     """
     try:
         full = os.sched_getaffinity(0)
