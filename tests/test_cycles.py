@@ -470,6 +470,36 @@ os._exit(0)
 """
 
 
+_SESSION_FOLDER = """
+import sys
+from concurrent.futures import ThreadPoolExecutor
+sys.path[:0] = [sys.argv[1]]
+from backends.cycles import CyclesBackend
+from specsynth.spec import CyclesOptions
+
+def start():
+    b = CyclesBackend(CyclesOptions(name="cycles", threads=1))
+    return b._bpy.app.tempdir
+
+print(ThreadPoolExecutor(1).submit(start).result(), flush=True)
+"""
+
+
+@pytest.mark.slow
+def test_job_thread_worker_leaves_no_blender_session_folder():
+    """Blender's own exit handler crashes when bpy ran off the main thread, as in a Dask worker
+    (README, known limitations), before it removes its /tmp/blender_* folder; ours removes it."""
+    import os
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _SESSION_FOLDER, str(Path(__file__).resolve().parents[1])],
+                       capture_output=True, text=True, timeout=300)
+    folder = r.stdout.strip().splitlines()[-1]
+    assert "blender" in folder, r.stderr[-2000:]
+    assert not os.path.exists(folder)
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(len(__import__("os").sched_getaffinity(0)) < 2, reason="needs two cores")
 @pytest.mark.parametrize("thread", ["main", "job thread"])

@@ -5,11 +5,13 @@ See docs/backends/cycles.md for the preset mapping and the traps this avoids.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any, ClassVar
@@ -61,6 +63,9 @@ def _quiet_stdout():
         os.close(saved)
 
 
+_SESSION_CLEANUP: list = []  # the atexit hook, registered once per process
+
+
 class CyclesBackend:
     name: ClassVar[str] = "cycles"
     draws_scene: ClassVar[bool] = True
@@ -71,6 +76,11 @@ class CyclesBackend:
         with tbb_sized_to(self.threads):
             import bpy  # once per worker process; the core never imports bpy
 
+        if threading.current_thread() is not threading.main_thread() and not _SESSION_CLEANUP:
+            # Blender's exit handler crashes at interpreter exit when bpy runs off the main thread
+            # (a Dask worker's job thread), before it removes its session folder: remove it first.
+            # Read at exit: loading factory settings moves the session folder.
+            _SESSION_CLEANUP.append(atexit.register(lambda: shutil.rmtree(bpy.app.tempdir, ignore_errors=True)))
         self._bpy = bpy
         self._tmp = Path(tempfile.mkdtemp(prefix="specsynth-cycles-"))
         self._scene_ir: RenderScene | None = None
