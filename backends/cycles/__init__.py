@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import functools
 import os
 import shutil
 import sys
@@ -63,7 +64,12 @@ def _quiet_stdout():
         os.close(saved)
 
 
-_SESSION_CLEANUP: list = []  # the atexit hook, registered once per process
+@functools.cache  # once per process
+def _remove_session_folder_at_exit(bpy) -> None:
+    # Blender's exit handler crashes at interpreter exit when bpy runs off the main thread (a Dask
+    # worker's job thread), before it removes its session folder: remove it first. Read at exit:
+    # loading factory settings moves the session folder.
+    atexit.register(lambda: shutil.rmtree(bpy.app.tempdir, ignore_errors=True))
 
 
 class CyclesBackend:
@@ -76,11 +82,8 @@ class CyclesBackend:
         with tbb_sized_to(self.threads):
             import bpy  # once per worker process; the core never imports bpy
 
-        if threading.current_thread() is not threading.main_thread() and not _SESSION_CLEANUP:
-            # Blender's exit handler crashes at interpreter exit when bpy runs off the main thread
-            # (a Dask worker's job thread), before it removes its session folder: remove it first.
-            # Read at exit: loading factory settings moves the session folder.
-            _SESSION_CLEANUP.append(atexit.register(lambda: shutil.rmtree(bpy.app.tempdir, ignore_errors=True)))
+        if threading.current_thread() is not threading.main_thread():
+            _remove_session_folder_at_exit(bpy)
         self._bpy = bpy
         self._tmp = Path(tempfile.mkdtemp(prefix="specsynth-cycles-"))
         self._scene_ir: RenderScene | None = None
