@@ -7,6 +7,7 @@ Units are part of every field description: metres, degrees, pixels.
 
 from __future__ import annotations
 
+import datetime
 import math
 from typing import Annotated, Any, Literal, Union
 
@@ -365,6 +366,35 @@ class Outputs(Strict):
         return v
 
 
+# --------------------------------------------------------------------------- dataset metadata
+
+
+class License(Strict):
+    name: str = Field("unspecified", max_length=200, description="Licence of the dataset's images.")
+    url: str = Field("", max_length=500, description="Where the licence text is.")
+
+
+class Metadata(Strict):
+    """What COCO's ``info``/``licenses`` and dataset cards carry. Dates come from here, never from
+    the clock, so that two builds of one spec stay byte-identical."""
+
+    version: str = Field("1.0", max_length=100, description="Dataset version (COCO info.version).")
+    date_created: datetime.date = Field(
+        datetime.date(1970, 1, 1),
+        description="Release date (YYYY-MM-DD): COCO info.date_created and every image's date_captured. "
+        "The default 1970-01-01 means 'not set'.",
+    )
+    contributor: str = Field("", max_length=200, description="COCO info.contributor.")
+    url: str = Field("", max_length=500, description="COCO info.url.")
+    license: License = License()
+
+    @field_validator("version", mode="before")
+    @classmethod
+    def _version_as_text(cls, v):
+        # YAML reads `version: 1.0` as a float; quote it ('1.10') when the digits matter.
+        return str(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v
+
+
 # --------------------------------------------------------------------------- the spec
 
 
@@ -384,6 +414,7 @@ class DatasetSpec(Strict):
     quality: Quality = Quality()
     backend: Backend = Field(description="Render backend and its options, selected by 'name'.")
     outputs: Outputs = Outputs()
+    metadata: Metadata = Metadata()
 
 
 def json_schema() -> dict:

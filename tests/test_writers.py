@@ -108,7 +108,7 @@ def _make_image(store_root: Path, index: int, rng: np.random.Generator, depth_sc
         masks.append(f"mask_{gt:06d}.png")
         visib.append(f"mask_visib_{gt:06d}.png")
         ys, xs = np.nonzero(vis)
-        bbox_v = [int(xs.min()), int(ys.min()), int(np.ptp(xs) + 1), int(np.ptp(ys) + 1)] if len(xs) else [-1] * 4
+        bbox_v = [int(xs.min()), int(ys.min()), int(np.ptp(xs)), int(np.ptp(ys))] if len(xs) else [-1] * 4  # BOP: w = xmax - xmin
         instances.append(
             InstanceGT(
                 obj_id=(1, 3)[gt % 2],
@@ -410,6 +410,7 @@ def test_parquet_rows_match_scene_gt_and_duckdb_queries(built, dataset):
 
 
 def test_coco_files_load_in_pycocotools(built, dataset):
+    from pycocotools import mask as mask_utils
     from pycocotools.coco import COCO
 
     out, counts = built
@@ -426,7 +427,8 @@ def test_coco_files_load_in_pycocotools(built, dataset):
             vis = iio.imread(store / rec.mask_visib_files[gt_id]) > 0
             assert np.array_equal(split.annToMask(ann).astype(bool), vis)
             assert ann["category_id"] == g.obj_id and ann["iscrowd"] == 0
-            assert ann["bbox"] == g.bbox_visib and ann["area"] == vis.sum()
+            assert ann["bbox"] == [int(v) for v in mask_utils.toBbox(ann["segmentation"] | {"counts": ann["segmentation"]["counts"].encode()})]
+            assert ann["bbox"] == [*g.bbox_visib[:2], g.bbox_visib[2] + 1, g.bbox_visib[3] + 1] and ann["area"] == vis.sum()
             assert ann["ignore"] == (g.visib_fract < 0.1)
             n_visible += 1
     assert n_visible == sum(g.px_count_visib > 0 for rec, _ in images for g in rec.instances)

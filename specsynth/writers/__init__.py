@@ -30,12 +30,14 @@ def write_outputs(
     counts: dict[str, int] = {"images": len(images), "instances": sum(len(r.instances) for r, _ in images)}
     if o.bop:
         counts |= write_bop(
-            out, spec.split, images, models, spec.intrinsics, o, coco=o.coco, rles=rles, dataset_name=spec.name
+            out, spec.split, images, models, spec.intrinsics, o, coco=o.coco, rles=rles, dataset_name=spec.name,
+            meta=spec.metadata,
         )
     if o.parquet:
         counts |= write_parquet(out, spec.split, images, o.chunk_size, bop_layout=o.bop, rles=rles)
     if o.coco:
         counts |= write_coco(
-            out, spec.split, images, models, o.chunk_size, bop_layout=o.bop, rles=rles, dataset_name=spec.name
+            out, spec.split, images, models, o.chunk_size, bop_layout=o.bop, rles=rles, dataset_name=spec.name,
+            meta=spec.metadata,
         )
     return counts

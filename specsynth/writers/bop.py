@@ -28,7 +28,7 @@ from ..assets import ObjectAsset
 from ..conventions import m_to_mm
 from ..meshio import MeshData, atomic_write_bytes, read_mesh
 from ..records import ImageRecord
-from ..spec import Intrinsics, Outputs
+from ..spec import Intrinsics, Metadata, Outputs
 
 ImageEntry = tuple[ImageRecord, Path]  # record + the store folder holding its files
 
@@ -357,6 +357,7 @@ def write_bop(
     coco: bool | None = None,
     rles: dict[int, list] | None = None,
     dataset_name: str = "specsynth",
+    meta: Metadata = Metadata(),
 ) -> dict[str, int]:
     """Write (or bring up to date) ``<out>/bop``; returns counts.
 
@@ -408,7 +409,9 @@ def write_bop(
             "scene_gt_info.json": bop_json_bytes(scene_gt_info),
         }
         if with_coco:
-            doc = coco_mod.chunk_document(entries, outputs.chunk_size, categories, rles, f"{dataset_name}_{split}")
+            doc = coco_mod.chunk_document(
+                entries, outputs.chunk_size, categories, rles, f"{dataset_name}_{split}", meta
+            )
             jsons["scene_gt_coco.json"] = coco_mod.coco_json_bytes(doc)
         for name, data in jsons.items():
             counts["bop_written"] += write_if_changed(cdir / name, data)

@@ -4,8 +4,15 @@ Follows the BOP toolkit's ``calc_gt_coco.py`` output: category_id = obj_id, segm
 ``mask_visib``, instances with an empty visible mask left out, ``ignore`` set below 10 % visible.
 Differences, on purpose: bbox is the *visible* (modal) box, as in the BOP'22 train_pbr downloads;
 RLE counts are pycocotools' compressed strings (``pycocotools.coco.COCO`` and the toolkit's
-``rle_to_binary_mask`` both read them); no ``date_created``/``date_captured``, which would make two
-builds of one spec differ.
+``rle_to_binary_mask`` both read them).
+
+Box convention: COCO's, not BOP's. A box ``[x, y, w, h]`` covers the pixels ``x .. x + w - 1``, so
+``w = xmax - xmin + 1``, exactly what ``pycocotools.mask.toBbox`` gives for the annotation's own
+mask (and what detectron2, mmdetection and the BOP toolkit's COCO converter read). BOP files keep
+BOP's ``w = xmax - xmin``.
+
+Dates (``info.date_created``, ``images[].date_captured``) come from the spec's ``metadata``, never
+from the clock, so two builds of one spec are byte-identical.
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from pycocotools import mask as mask_utils
 
 from ..assets import ObjectAsset
 from ..records import ImageRecord
+from ..spec import Metadata
 from .bop import ImageEntry, _plain, chunk_and_im_id, image_relpaths, sorted_images, write_if_changed
 
 IGNORE_VISIB_FRACT = 0.1  # the toolkit's threshold for "ignore" ground truth
@@ -63,6 +71,36 @@ def all_visible_rles(images: Sequence[ImageEntry]) -> dict[int, list[Rle | None]
     return {rec.index: visible_rles(rec, store) for rec, store in images}
 
 
+def coco_box(bbox_visib: Sequence[int]) -> list[int]:
+    """BOP box (w = xmax - xmin) -> COCO box (w = xmax - xmin + 1); an empty box stays as it is."""
+    x, y, w, h = (int(v) for v in bbox_visib)
+    if w < 0 or h < 0:
+        return [x, y, w, h]
+    return [x, y, w + 1, h + 1]
+
+
+LICENSE_ID = 1  # the dataset's one licence; every image refers to it
+
+
+def info_and_licenses(meta: Metadata, description: str) -> dict[str, Any]:
+    """COCO's ``info`` and ``licenses``, which FiftyOne and CVAT imports look for."""
+    return {
+        "info": {
+            "description": description,
+            "url": meta.url,
+            "version": meta.version,
+            "year": meta.date_created.year,
+            "contributor": meta.contributor,
+            "date_created": meta.date_created.isoformat(),
+        },
+        "licenses": [{"id": LICENSE_ID, "name": meta.license.name, "url": meta.license.url}],
+    }
+
+
+def date_captured(meta: Metadata) -> str:
+    return f"{meta.date_created.isoformat()} 00:00:00"  # COCO's "YYYY-MM-DD hh:mm:ss"
+
+
 def categories(models: Sequence[ObjectAsset], supercategory: str) -> list[dict[str, Any]]:
     return [
         {"id": int(a.obj_id), "name": a.name, "supercategory": supercategory}
@@ -95,7 +133,7 @@ def _annotations(
             if g.px_count_visib < 1:
                 continue
             ann["area"] = int(g.px_count_visib)
-        ann["bbox"] = [int(v) for v in g.bbox_visib]
+        ann["bbox"] = coco_box(g.bbox_visib)
         anns.append(ann)
     return anns
 
@@ -104,14 +142,18 @@ def _document(
     entries: list[tuple[int, str, ImageRecord, list[Rle | None]]],
     cats: list[dict[str, Any]],
     description: str,
+    meta: Metadata,
 ) -> dict[str, Any]:
     images, annotations = [], []
+    captured = date_captured(meta)
     for image_id, file_name, rec, rles in entries:
-        images.append({"id": image_id, "file_name": file_name, "width": int(rec.width), "height": int(rec.height)})
+        images.append({
+            "id": image_id, "file_name": file_name, "width": int(rec.width), "height": int(rec.height),
+            "license": LICENSE_ID, "date_captured": captured,
+        })
         annotations += _annotations(rec, rles, image_id, len(annotations) + 1)
     return {
-        "info": {"description": description, "url": "", "version": "1.0"},
-        "licenses": [],
+        **info_and_licenses(meta, description),
         "categories": cats,
         "images": images,
         "annotations": annotations,
@@ -128,13 +170,14 @@ def chunk_document(
     cats: list[dict[str, Any]],
     rles: dict[int, list] | None,
     description: str,
+    meta: Metadata,
 ) -> dict[str, Any]:
     """``scene_gt_coco.json`` of one chunk: image_id = im_id, file names relative to the chunk."""
     items = []
     for rec, store in sorted_images(entries):
         im_id = chunk_and_im_id(rec.index, chunk_size)[1]
         items.append((im_id, f"rgb/{im_id:06d}{Path(rec.rgb_file).suffix.lower()}", rec, _rles_for(rec, store, rles)))
-    return _document(items, cats, description)
+    return _document(items, cats, description, meta)
 
 
 def coco_json_bytes(doc: dict[str, Any]) -> bytes:
@@ -151,6 +194,7 @@ def write_coco(
     bop_layout: bool = True,
     rles: dict[int, list] | None = None,
     dataset_name: str = "specsynth",
+    meta: Metadata = Metadata(),
 ) -> dict[str, int]:
     """``<out>/coco/<split>.json`` for the whole split; image_id = the global image index.
 
@@ -165,6 +209,6 @@ def write_coco(
         else:
             rgb = os.path.relpath(Path(store) / rec.rgb_file, out).replace(os.sep, "/")
         items.append((rec.index, "../" + rgb, rec, _rles_for(rec, store, rles)))
-    doc = _document(items, categories(models, dataset_name), f"{dataset_name}_{split}")
+    doc = _document(items, categories(models, dataset_name), f"{dataset_name}_{split}", meta)
     write_if_changed(path, coco_json_bytes(doc))
     return {"coco_images": len(doc["images"]), "coco_annotations": len(doc["annotations"])}
