@@ -36,6 +36,10 @@ from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
 # content key that depends on an asset then changes with it.
 CONVERSION_VERSION = 1
 
+# Built-in models are re-centred on their bounding box, as BOP expects of a model (pybullet_data's
+# origins are wherever the modeller left them: 100 mm off for the mug). User models stay as given.
+BUILTIN_ORIGIN = "bbox_centre"
+
 UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MIN_DIAMETER = 1e-3  # metres; below this the declared unit is almost surely wrong
 MAX_DIAMETER = 10.0
@@ -166,7 +170,6 @@ class _Builtin:
     # several pybullet_data meshes are Y-up OBJs inside URDFs whose origin does not rotate them.
     up_fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
     real_diameter: float | None = None  # rescale to a real-world size (the URDF size is not one)
-    recenter: bool = False  # source frame is an export artefact far from the geometry
 
 
 _Y_UP = (math.pi / 2, 0.0, 0.0)
@@ -181,9 +184,9 @@ _BUILTINS: dict[str, _Builtin] = {
     "torus": _Builtin(mesh="torus/torus_textured.obj", scale=0.1, up_fix=_Y_UP),
     # The URDF ball is 1 m across; a real size-5 football is 0.22 m.
     "soccerball": _Builtin(urdf="soccerball.urdf", real_diameter=0.22),
-    "toys/cube": _Builtin(mesh="toys/cube.obj", recenter=True),
-    "toys/cylinder": _Builtin(mesh="toys/cylinder.obj", recenter=True),
-    "toys/prism": _Builtin(mesh="toys/prism.obj", recenter=True),
+    "toys/cube": _Builtin(mesh="toys/cube.obj"),
+    "toys/cylinder": _Builtin(mesh="toys/cylinder.obj"),
+    "toys/prism": _Builtin(mesh="toys/prism.obj"),
     "toys/shape_sorter": _Builtin(mesh="toys/shape_sorter.obj", scale=0.5),
 }
 
@@ -590,7 +593,7 @@ class _Source:
             "kind": self.kind,
             "unit": self.unit,
             "builtin": None if self.builtin is None else [self.builtin.scale, list(self.builtin.up_fix),
-                                                         self.builtin.real_diameter, self.builtin.recenter],
+                                                         self.builtin.real_diameter, BUILTIN_ORIGIN],
             "files": [file_digest(p, self.label) for p in self.files()],
         }
         return _hash_json(params)
@@ -749,8 +752,7 @@ def _convert_builtin(src: _Source):
         texture = None
     mesh = procedural.concatenate(parts)
     v = mesh.vertices.astype(np.float64)
-    if b.recenter:
-        v = v - (v.min(0) + v.max(0)) / 2
+    v = v - (v.min(0) + v.max(0)) / 2  # BOP's model origin: the centre of the 3D bounding box
     if b.real_diameter:
         diam, _, _ = mesh_stats(v)
         v = v * (b.real_diameter / diam)

@@ -135,8 +135,10 @@ def test_builtins_metric_and_upright(cache, tmp_path):
     assert 0.05 <= duck.diameter <= 0.2 and 0.03 <= teddy.diameter <= 0.3
     assert 0.05 <= mug.diameter <= 0.2
     assert jenga.extents == pytest.approx((0.15, 0.05, 0.03), abs=1e-4)
-    # duck.obj is Y-up: made canonical (+Z up), it sits on z ~ 0 and is longer than tall.
-    assert duck.extents[2] < duck.extents[0] and abs(duck.bbox_min[2]) < 0.01
+    # duck.obj is Y-up: made canonical (+Z up), it is longer than tall.
+    assert duck.extents[2] < duck.extents[0]
+    for a in (duck, teddy, mug, jenga):  # BOP's model origin: the centre of the 3D bounding box
+        assert np.asarray(a.bbox_min) + np.asarray(a.extents) / 2 == pytest.approx((0, 0, 0), abs=1e-6)
     assert duck.material.texture.endswith("duckCM.png") and read_mesh(duck.mesh_path).uv is not None
     # Built-ins follow the BOP ids in list order.
     first = max(a.obj_id for a in res.values() if a.name not in ("duck", "teddy", "mug", "jenga"))
