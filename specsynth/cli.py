@@ -1,4 +1,4 @@
-"""Command line: validate, schema, compile, plan, build, diff, scenes.
+"""Command line: validate, schema, compile, plan, build, diff, scenes, view, stats, bench, export.
 
 Every user error (a bad spec, a missing asset, a locked output folder, a missing plugin) prints a
 located message and exits with status 2, never a traceback (use --debug for one).
@@ -225,6 +225,17 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from .writers.yolo import export_yolo
+
+    s = export_yolo(Path(args.dataset), Path(args.dest), min_visib=args.min_visib, val_split=args.val,
+                    val_fraction=args.val_fraction)
+    per_split = ", ".join(f"{k}: {v}" for k, v in sorted(s.images.items()))
+    print(f"wrote {Path(args.dest) / 'data.yaml'}: {len(s.names)} classes, images ({per_split}), {s.boxes} boxes, "
+          f"{s.skipped_low_visibility} skipped below {args.min_visib:g} visible")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -301,6 +312,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
     p.set_defaults(fn=cmd_bench)
 
+    p = sub.add_parser("export", help="convert a built dataset for other tools (yolo: Ultralytics)")
+    p.add_argument("format", choices=["yolo"])
+    p.add_argument("dataset", help="a build's --out folder (or any folder with a bop/ layout)")
+    p.add_argument("dest", help="folder to write (new, empty, or an earlier export)")
+    p.add_argument("--min-visib", type=float, default=0.1,
+                   help="skip objects less visible than this fraction (default 0.1, COCO's 'ignore')")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--val", metavar="SPLIT", help="use this BOP split as the validation set")
+    g.add_argument("--val-fraction", type=float, default=0.0,
+                   help="hold out this fraction of arrangements as the validation set (default 0: val = train)")
+    p.set_defaults(fn=cmd_export)
+
     args = ap.parse_args(argv)
     try:
         return args.fn(args)
@@ -317,8 +340,9 @@ def main(argv: list[str] | None = None) -> int:
         from .assets import AssetError
         from .backend_api import PluginNotFound
         from .build import BuildLocked
+        from .writers.yolo import ExportError
 
-        if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError)):
+        if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError)):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)
