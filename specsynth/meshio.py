@@ -8,7 +8,7 @@ the layout is exact and stable (its bytes feed content hashes), read back with n
 from __future__ import annotations
 
 import os
-import tempfile
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,10 +82,23 @@ def mesh_bytes(mesh: MeshData, comments: tuple[str, ...] = ()) -> bytes:
     return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + faces.tobytes()
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
+def new_temp_beside(path: Path, suffix: str = ".tmp") -> tuple[int, str]:
+    """(fd, name) of a new, empty temp file next to ``path``, for an atomic rename onto it.
+
+    Created with mode 0666 so the process umask applies (0644 by default): mkstemp's 0600 would
+    make every dataset file unreadable to other users and containers."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    while True:
+        tmp = str(path.parent / f".{path.name}.{uuid.uuid4().hex[:12]}{suffix}")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666), tmp
+        except FileExistsError:
+            continue
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    fd, tmp = new_temp_beside(path)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)

@@ -282,3 +282,17 @@ def test_parquet_tables_join_in_pyarrow_pandas_and_datasets(demo_bl):
     assert ds["images"].num_rows == images.num_rows and ds["instances"].num_rows == instances.num_rows
     first = ds["instances"][0]
     assert first["mask_visib_rle"]["size"] == [480, 640] and len(first["bbox_visib"]) == 4
+
+
+# --------------------------------------------------------------------------- file modes
+
+
+def test_output_files_follow_the_umask(demo_bl):
+    """Datasets are shared: files get 0666 minus the umask (0644 by default), not mkstemp's 0600."""
+    old = os.umask(0)
+    os.umask(old)
+    want = 0o666 & ~old
+    files = [p for sub in ("bop", "coco", "parquet") for p in (demo_bl / sub).rglob("*") if p.is_file()]
+    assert len(files) > 50
+    modes = {oct(p.stat().st_mode & 0o777) for p in files}
+    assert modes == {oct(want)}, modes

@@ -11,14 +11,13 @@ from __future__ import annotations
 import io
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from PIL import Image
 
-from ..meshio import atomic_write_bytes
+from ..meshio import atomic_write_bytes, new_temp_beside
 
 # Scales a user would recognise (BOP datasets use 0.1 and 1.0); "auto" takes the finest that fits
 # so near-range data keeps sub-millimetre resolution.
@@ -143,9 +142,8 @@ def write_exr(path: str | Path, rgb_linear: np.ndarray) -> None:
     if a.ndim != 3 or a.shape[2] != 3:
         raise ValueError(f"EXR needs a HxWx3 array, got shape {a.shape}")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     # OpenEXR writes by file name only, so the temp file must be a real path in the target dir.
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".exr")
+    fd, tmp = new_temp_beside(path, ".exr")
     os.close(fd)
     try:
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
