@@ -24,11 +24,13 @@ from ..assets import AssetError
 from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from ..meshio import MeshData
 from . import procedural
-from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMesh, World
+from .. import meshfiles
+from . import filemeshes
+from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
 from .types import SceneDesc, Stage
 
 BUILTIN_DIR = Path(__file__).parent / "builtin"
-SCENE_VERSION = 1  # bump when load_scene's output changes for the same file
+SCENE_VERSION = 2  # 2: glTF/OBJ sources keep every material. Bump when load_scene's output changes for the same file
 
 __all__ = ["SceneError", "builtin_scenes", "load_scene", "read_scene_file", "scene_fingerprint", "stage_table"]
 
@@ -150,6 +152,10 @@ def _source_files(m: SceneMesh, scene_path: Path) -> tuple[Path | None, list[Pat
                 if tex is None and vis.mesh.suffix.lower() == ".obj":
                     tex = assets._mtl_texture(vis.mesh)[0]
         return p, files, tex
+    if filemeshes.is_multi_material(p):
+        if not p.is_file():
+            raise AssetError(f"{what}: mesh file not found: {p}")
+        return p, meshfiles.source_files(p), None
     files = assets._mesh_and_material_files(p, what)
     tex = assets._mtl_texture(p)[0] if p.suffix.lower() == ".obj" else None
     return p, files, tex
@@ -177,7 +183,12 @@ def _build_geometry(m: SceneMesh, src: Path | None, what: str) -> MeshData:
         mesh = procedural.concatenate([replace(p, colors=None) for p in parts])
     else:
         mesh = assets.finish_mesh(assets.read_any_mesh(src)[0], what)
-    if kind == "file":
+    return _finish_geometry(m, mesh, what)
+
+
+def _finish_geometry(m: SceneMesh, mesh: MeshData, what: str) -> MeshData:
+    """Unit and scale baked in, UVs multiplied by uv_scale, validated."""
+    if _source_kind(m) == "file":
         mesh = procedural.transform_mesh(mesh, np.diag([assets.UNIT_SCALE[m.unit]] * 3 + [1.0]))
     scale = _scale3(m.transform.scale)
     if not np.allclose(scale, 1.0):
@@ -190,7 +201,7 @@ def _build_geometry(m: SceneMesh, src: Path | None, what: str) -> MeshData:
 
 def _mesh_cache_key(m: SceneMesh, files: list[Path], what: str) -> str:
     return assets._hash_json({
-        "v": [assets.CONVERSION_VERSION, SCENE_VERSION],
+        "v": [assets.CONVERSION_VERSION, SCENE_VERSION, filemeshes.PARTS_VERSION],
         "source": m.source if isinstance(m.source, str) else m.source.model_dump(),
         "unit": m.unit,
         "scale": list(_scale3(m.transform.scale)),
@@ -200,7 +211,10 @@ def _mesh_cache_key(m: SceneMesh, files: list[Path], what: str) -> str:
 
 
 def _material(m: SceneMesh, own_texture: Path | None, scene_path: Path, what: str) -> MaterialIR:
-    mat = m.material
+    return _material_ir(m.material, own_texture, scene_path, what)
+
+
+def _material_ir(mat: SceneMaterial, own_texture: Path | None, scene_path: Path, what: str) -> MaterialIR:
     tex = None
     if mat.texture is not None:
         tex = assets.resolve_data_ref(mat.texture, scene_path.parent, f"{what}.material.texture")
@@ -273,27 +287,23 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None) -> SceneDesc:
     path = _scene_path(ref, spec_dir)
     sf = read_scene_file(path)
     cache = Path(cache) if cache is not None else assets.cache_dir()
-    meshes = []
+    meshes, colliders = [], []
     for m in sf.meshes:
         what = f"{path}: meshes.{m.name}"
         try:
-            src, files, own_tex = _source_files(m, path)
-            key = _mesh_cache_key(m, files, what)
-            ply = cache / "assets" / f"{key}.ply"
-            if ply.is_file():
-                mesh_key = assets.file_digest(ply)
-            else:
-                ply, mesh_key = assets.store_mesh(_build_geometry(m, src, what), key, cache)
-            material = _material(m, own_tex, path, what)
+            parts = _load_mesh(m, path, cache, what)
         except SceneError:
             raise
-        except AssetError as e:
+        except (AssetError, meshfiles.MeshFileError) as e:
             raise SceneError(str(e) if str(e).startswith(str(path)) else f"{what}: {e}") from e
         T = np.eye(4)
         T[:3, :3] = _rotation(m.transform.rotation)
         T[:3, 3] = m.transform.translation
-        meshes.append(MeshInstance(name=m.name, mesh_path=str(ply), mesh_key=mesh_key, pose=as_tuple(T),
-                                   material=material))
+        for name, ply, mesh_key, material in parts:
+            meshes.append(MeshInstance(name=name, mesh_path=str(ply), mesh_key=mesh_key, pose=as_tuple(T),
+                                       material=material))
+            if m.collide:
+                colliders.append(name)
     stages = {s.name: _stage(s) for s in sf.stages}
     wanted = getattr(ref, "stages", None)
     if wanted:
@@ -301,15 +311,41 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None) -> SceneDesc:
         if unknown:
             raise SceneError(f"{path}: unknown stage(s) {unknown}; the scene has {', '.join(stages)}")
         stages = {s: stages[s] for s in wanted}
-    colliders = tuple(m.name for m in sf.meshes if m.collide)
     return SceneDesc(
         name=sf.name,
         meshes=tuple(meshes),
         lights=tuple(_light(ld) for ld in sf.lights),
         world=_world(sf.world, path),
         stages=stages,
-        colliders=None if len(colliders) == len(sf.meshes) else colliders,
+        colliders=None if len(colliders) == len(meshes) else tuple(colliders),
     )
+
+
+def _load_mesh(m: SceneMesh, path: Path, cache: Path, what: str) -> list[tuple[str, Path, str, MaterialIR]]:
+    """(instance name, normalised PLY, mesh_key, material) of each part of one scene mesh: one
+    part, or one per material of a glTF/OBJ file (named ``<mesh>/<material>``)."""
+    src, files, own_tex = _source_files(m, path)
+    key = _mesh_cache_key(m, files, what)
+    if not filemeshes.is_multi_material(src):
+        if m.materials:
+            raise SceneError(f"{what}.materials: only glTF and OBJ files have named materials")
+        ply = cache / "assets" / f"{key}.ply"
+        if ply.is_file():
+            mesh_key = assets.file_digest(ply)
+        else:
+            ply, mesh_key = assets.store_mesh(_build_geometry(m, src, what), key, cache)
+        return [(m.name, ply, mesh_key, _material(m, own_tex, path, what))]
+    parts = filemeshes.convert_parts(m, src, key, cache, lambda mesh: _finish_geometry(m, mesh, what))
+    unknown = sorted(set(m.materials) - {p[1] for p in parts})
+    if unknown:
+        have = ", ".join(sorted({p[1] for p in parts}))
+        raise SceneError(f"{what}.materials: {', '.join(map(repr, unknown))} not in {src.name} (it has: {have})")
+
+    def yaml_material(mat: SceneMaterial, own: Path | None) -> MaterialIR:
+        return _material_ir(mat, own, path, what)
+
+    return [(f"{m.name}/{name}", ply, mesh_key, filemeshes.part_material(m, mat, mname, yaml_material))
+            for name, mname, ply, mesh_key, mat in parts]
 
 
 def scene_fingerprint(ref, spec_dir: Path) -> str:

@@ -160,11 +160,16 @@ class SceneMesh(_Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.\-]+$", description="Unique within the scene.")
     source: Source = Field(
         description="{box: [sx, sy, sz]}, {plane: [sx, sy]}, {cylinder: {radius, height}}, "
-        "'pybullet_data:table/table.obj' (OBJ/STL/URDF) or a path relative to the scene file."
+        "'pybullet_data:table/table.obj' or a path relative to the scene file: glTF/GLB and OBJ+MTL "
+        "(every material kept), PLY, STL, URDF."
     )
     unit: Literal["m", "cm", "mm"] = Field("m", description="Length unit of a mesh file.")
     transform: Transform = Transform()
     material: SceneMaterial = SceneMaterial()
+    materials: dict[str, SceneMaterial] = Field(
+        default_factory=dict,
+        description="Overrides for single materials of a glTF/OBJ file, by their name in the file.",
+    )
     collide: bool = Field(True, description="Whether dropped objects collide with it (physics).")
 
 

@@ -1,0 +1,200 @@
+"""glTF 2.0 (``.glb``, ``.gltf``) -> parts, one per primitive material.
+
+The file's node hierarchy, transforms and instancing are honoured (trimesh flattens the scene
+graph); +Y up is turned into our +Z up. Materials follow the glTF metallic-roughness model:
+base colour = ``baseColorFactor`` (linear) x ``baseColorTexture`` (sRGB), metallic and roughness
+factors (glTF's default 1.0 when absent), emission = ``emissiveFactor`` x
+``KHR_materials_emissive_strength`` as radiance (Blender's importer reads it the same way).
+Embedded textures are written once as PNG into the texture cache, named by their content hash.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import struct
+import warnings
+from pathlib import Path
+from urllib.parse import unquote
+
+import numpy as np
+
+from ..ir import MaterialIR
+from ..meshio import MeshData, atomic_write_bytes
+from .part import MAX_TRIANGLES, Y_UP_TO_Z_UP, MeshFileError, Part, unique_names
+
+# Extensions a file may *require* that this reader renders correctly (or that change nothing here).
+SUPPORTED_REQUIRED = {"KHR_materials_emissive_strength", "KHR_mesh_quantization"}
+# Material inputs read by the file but not yet rendered; the parts still load with their factors.
+_NOT_YET = ("metallicRoughnessTexture", "normalTexture", "emissiveTexture", "occlusionTexture")
+
+
+def gltf_json(path: Path) -> dict:
+    """The JSON document of a .gltf or the JSON chunk of a .glb, with located errors."""
+    data = _read(path)
+    if path.suffix.lower() == ".glb":
+        if len(data) < 20 or data[:4] != b"glTF":
+            raise MeshFileError(f"{path}: not a GLB file (no 'glTF' header)")
+        _, _, total = struct.unpack_from("<4sII", data, 0)
+        if total > len(data):
+            raise MeshFileError(f"{path}: truncated GLB ({len(data)} of {total} bytes)")
+        chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
+        if chunk_type != 0x4E4F534A or 20 + chunk_len > len(data):
+            raise MeshFileError(f"{path}: GLB has no readable JSON chunk")
+        raw = data[20 : 20 + chunk_len]
+    else:
+        raw = data
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as e:
+        raise MeshFileError(f"{path}: glTF JSON is not valid ({type(e).__name__})") from None
+    if not isinstance(doc, dict) or not str(doc.get("asset", {}).get("version", "")).startswith("2"):
+        raise MeshFileError(f"{path}: not glTF 2.0 (asset.version missing or not 2.x)")
+    return doc
+
+
+def _read(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as e:
+        raise MeshFileError(f"{path}: cannot read ({e.strerror})") from None
+
+
+def check_extensions(path: Path, doc: dict) -> None:
+    required = set(doc.get("extensionsRequired", [])) - SUPPORTED_REQUIRED
+    if required:
+        names = ", ".join(sorted(required))
+        hint = " (Draco-compressed geometry: re-export without compression)" if "KHR_draco_mesh_compression" in required else ""
+        raise MeshFileError(f"{path}: requires glTF extension(s) specsynth does not support: {names}{hint}")
+
+
+def source_files(path: Path) -> list[Path]:
+    """The file and every external buffer and image it references (data: URIs are inside it)."""
+    doc = gltf_json(path)
+    out = [path]
+    for item in doc.get("buffers", []) + doc.get("images", []):
+        uri = item.get("uri")
+        if uri and not uri.startswith("data:"):
+            ref = (path.parent / unquote(uri))
+            if not ref.is_file():
+                raise MeshFileError(f"{path}: references {uri!r}, which is missing")
+            out.append(ref)
+    return out
+
+
+def read_parts(path: Path, texture_cache: Path) -> list[Part]:
+    import trimesh
+
+    doc = gltf_json(path)
+    check_extensions(path, doc)
+    source_files(path)  # a missing buffer or image is named before trimesh fails on it
+    try:
+        scene = trimesh.load(str(path), force="scene", process=False)
+    except Exception as e:  # trimesh raises many types for broken files
+        raise MeshFileError(f"{path}: cannot read glTF ({type(e).__name__})") from None
+    strengths = _emissive_strengths(doc)
+    by_material: dict[str, list[MeshData]] = {}
+    materials: dict[str, MaterialIR] = {}
+    triangles = 0
+    for node in scene.graph.nodes_geometry:
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry[geom_name]
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue  # points and lines are not surfaces
+        triangles += len(geom.faces)
+        if triangles > MAX_TRIANGLES:
+            raise MeshFileError(f"{path}: more than {MAX_TRIANGLES:,} triangles; decimate it first")
+        mat = getattr(geom.visual, "material", None)
+        name = str(getattr(mat, "name", None) or "default")
+        if name not in materials:
+            materials[name] = _material(path, name, mat, strengths.get(name, 1.0), texture_cache)
+        by_material.setdefault(name, []).append(_mesh(geom, transform, materials[name]))
+    if not by_material:
+        raise MeshFileError(f"{path}: no triangles")
+    names = list(by_material)
+    return [
+        Part(name=unique, mesh=_concatenate(by_material[n]), material=materials[n], material_name=n)
+        for n, unique in zip(names, unique_names(names))
+    ]
+
+
+def _emissive_strengths(doc: dict) -> dict[str, float]:
+    out = {}
+    for m in doc.get("materials", []):
+        ext = m.get("extensions", {}).get("KHR_materials_emissive_strength")
+        if ext and "name" in m:
+            out[str(m["name"])] = float(ext.get("emissiveStrength", 1.0))
+    return out
+
+
+def _mesh(geom, transform: np.ndarray, material: MaterialIR) -> MeshData:
+    R = Y_UP_TO_Z_UP @ np.asarray(transform, np.float64)[:3, :3]
+    t = Y_UP_TO_Z_UP @ np.asarray(transform, np.float64)[:3, 3]
+    v = np.asarray(geom.vertices, np.float64) @ R.T + t
+    faces = np.asarray(geom.faces, np.int32)
+    if np.linalg.det(R) < 0:  # a mirroring node: keep the faces facing out
+        faces = faces[:, ::-1].copy()
+    vis = geom.visual
+    uv = colors = None
+    if getattr(vis, "kind", None) == "texture" and getattr(vis, "uv", None) is not None and len(vis.uv) == len(v):
+        uv = np.asarray(vis.uv, np.float32)  # trimesh gives OpenGL's v-up, as MeshData wants
+    elif getattr(vis, "kind", None) == "vertex":
+        colors = np.asarray(vis.vertex_colors, np.uint8)
+    n = np.asarray(geom.vertex_normals, np.float64) @ np.linalg.inv(R)  # inv(R).T @ n, row-wise
+    normals = (n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)).astype(np.float32)
+    if material.texture is None:
+        uv = None
+    return MeshData(vertices=v.astype(np.float32), faces=faces, normals=normals, uv=uv, colors=colors)
+
+
+def _concatenate(meshes: list[MeshData]) -> MeshData:
+    if len(meshes) == 1:
+        return meshes[0]
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+
+    def cat(attr):
+        arrays = [getattr(m, attr) for m in meshes]
+        return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    return MeshData(
+        vertices=np.concatenate([m.vertices for m in meshes]),
+        faces=np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]).astype(np.int32),
+        normals=cat("normals"), uv=cat("uv"), colors=cat("colors"),
+    )
+
+
+def _material(path: Path, name: str, mat, strength: float, texture_cache: Path) -> MaterialIR:
+    if mat is None:
+        return MaterialIR(use_vertex_colors=True)
+    if not hasattr(mat, "baseColorFactor"):  # a SimpleMaterial from an odd file: diffuse only
+        mat = mat.to_pbr()
+    factor = mat.baseColorFactor
+    rgba = np.ones(4) if factor is None else np.asarray(factor, np.float64) / (255.0 if np.asarray(factor).dtype == np.uint8 else 1.0)
+    texture = None
+    if mat.baseColorTexture is not None:
+        texture = str(_store_texture(mat.baseColorTexture, texture_cache))
+    unused = [k for k in _NOT_YET if getattr(mat, k, None) is not None]
+    if unused:
+        warnings.warn(f"{path}: material {name!r}: {', '.join(unused)} not rendered yet; using the factors",
+                      stacklevel=4)
+    emission = np.zeros(3) if mat.emissiveFactor is None else np.asarray(mat.emissiveFactor, np.float64) * strength
+    return MaterialIR(
+        base_color=tuple(float(c) for c in np.clip(rgba[:3], 0, 1)),
+        use_vertex_colors=True,
+        texture=texture,
+        roughness=float(1.0 if mat.roughnessFactor is None else np.clip(mat.roughnessFactor, 0, 1)),
+        metallic=float(1.0 if mat.metallicFactor is None else np.clip(mat.metallicFactor, 0, 1)),
+        emission=tuple(float(c) for c in np.maximum(emission, 0)),
+    )
+
+
+def _store_texture(image, texture_cache: Path) -> Path:
+    """A decoded texture as PNG under its content hash; written once, never overwritten."""
+    buf = io.BytesIO()
+    image.convert("RGBA" if image.mode in ("RGBA", "LA", "P") else "RGB").save(buf, format="PNG")
+    data = buf.getvalue()
+    dest = Path(texture_cache) / f"{hashlib.sha256(data).hexdigest()}.png"
+    if not (dest.is_file() and dest.stat().st_size == len(data)):
+        atomic_write_bytes(dest, data)
+    return dest

@@ -1,0 +1,92 @@
+"""A scene mesh whose source is a glTF or OBJ file: one normalised mesh per material of the file.
+
+Parts are converted once and cached like every scene mesh: ``<cache>/assets/<key>.<i>.ply`` and a
+sidecar ``<key>.parts.json`` naming each part and its material. Texture paths in the sidecar are
+relative to where they live (the source file's folder, or the texture cache for textures embedded
+in a GLB), so a cache entry never points a later build at another folder's files; the key covers
+the bytes of the mesh, its material libraries and every texture.
+
+Which material a part gets, most specific first: ``materials: {<name in the file>: ...}`` on the
+scene mesh, then an explicit ``material:`` on it (which overrides every part), then the file's own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+from .. import assets, meshfiles
+from ..ir import MaterialIR
+from ..meshio import MeshData, atomic_write_bytes
+from .models import SceneMesh
+
+PARTS_VERSION = 1
+TEXTURE_DIR = "textures"  # under <cache>/assets: embedded glTF textures by content hash
+
+
+def is_multi_material(src: Path | None) -> bool:
+    return src is not None and src.suffix.lower() in meshfiles.MULTI_MATERIAL_SUFFIXES
+
+
+def _texture_ref(texture: str | None, src: Path, cache: Path) -> dict | None:
+    if texture is None:
+        return None
+    tex = Path(texture)
+    tex_root = cache / "assets" / TEXTURE_DIR
+    if tex.parent == tex_root:
+        return {"in": "cache", "name": tex.name}
+    return {"in": "source", "rel": os.path.relpath(tex, src.parent)}
+
+
+def _texture_path(ref: dict | None, src: Path, cache: Path) -> str | None:
+    if ref is None:
+        return None
+    if ref["in"] == "cache":
+        return str(cache / "assets" / TEXTURE_DIR / ref["name"])
+    return str(os.path.normpath(src.parent / ref["rel"]))
+
+
+def convert_parts(
+    m: SceneMesh, src: Path, key: str, cache: Path, finish: Callable[[MeshData], MeshData]
+) -> list[tuple[str, str, Path, str, MaterialIR]]:
+    """-> (part name, material name in the file, PLY path, mesh_key, file material) per part."""
+    sidecar = cache / "assets" / f"{key}.parts.json"
+    try:
+        meta = json.loads(sidecar.read_text())
+        if meta.get("v") == PARTS_VERSION and all((cache / "assets" / p["ply"]).is_file() for p in meta["parts"]):
+            return [_from_meta(p, src, cache) for p in meta["parts"]]
+    except (OSError, ValueError, KeyError):
+        pass  # absent, torn or stale: convert again
+    parts = meshfiles.read_parts(src, cache / "assets" / TEXTURE_DIR)
+    rows = []
+    for i, part in enumerate(parts):
+        ply, mesh_key = assets.store_mesh(finish(part.mesh), f"{key}.{i}", cache)
+        mat = asdict(part.material)
+        mat["texture"] = _texture_ref(part.material.texture, src, cache)
+        rows.append({"name": part.name, "material_name": part.material_name, "ply": ply.name,
+                     "mesh_key": mesh_key, "material": mat})
+    atomic_write_bytes(sidecar, json.dumps({"v": PARTS_VERSION, "parts": rows}, sort_keys=True).encode())
+    return [_from_meta(p, src, cache) for p in rows]
+
+
+def _from_meta(p: dict, src: Path, cache: Path) -> tuple[str, str, Path, str, MaterialIR]:
+    mat = dict(p["material"])
+    mat["texture"] = _texture_path(mat["texture"], src, cache)
+    for k in ("base_color", "emission"):
+        mat[k] = tuple(mat[k])
+    return p["name"], p["material_name"], cache / "assets" / p["ply"], p["mesh_key"], MaterialIR(**mat)
+
+
+def part_material(
+    m: SceneMesh, file_material: MaterialIR, material_name: str, yaml_material: Callable[..., MaterialIR]
+) -> MaterialIR:
+    """The material a part renders with (see the module docstring for the order)."""
+    own = Path(file_material.texture) if file_material.texture else None
+    if material_name in m.materials:
+        return yaml_material(m.materials[material_name], own)
+    if "material" in m.model_fields_set:
+        return yaml_material(m.material, own)
+    return file_material
