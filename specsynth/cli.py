@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+
+import numpy as np
 from pathlib import Path
 
 from rich.console import Console
@@ -170,6 +172,8 @@ def cmd_scenes(args) -> int:
                       samples=args.samples)
         print(f"wrote {args.out}")
         return 0
+    if args.action == "show":
+        return _show_scene(args)
     t = Table(title="built-in scenes")
     for col in ("scene", "stage", "area m²", "height m"):
         t.add_column(col)
@@ -177,6 +181,28 @@ def cmd_scenes(args) -> int:
         for stage, area, height in stage_table(name):
             t.add_row(name, stage.name, f"{area:.3f}", f"{height:.3f}")
     Console().print(t)
+    return 0
+
+
+def _show_scene(args) -> int:
+    from .scenes import load_scene
+    from .scenes.topdown import top_down
+
+    if not args.name:
+        print("error: scenes show needs a built-in scene name or a scene file", file=sys.stderr)
+        return 2
+    desc = load_scene(args.name, Path.cwd(), clearance=args.clearance)
+    t = Table(title=f"stages of {args.name}" + ("" if args.clearance is None else f" (clearance {args.clearance} m)"))
+    for col in ("stage", "area m²", "height m", "x range m", "y range m"):
+        t.add_column(col)
+    for name, st in sorted(desc.stages.items()):
+        p = np.asarray(st.polygon)
+        t.add_row(name, f"{st.area:.3f}", f"{st.height:.3f}", f"{p[:, 0].min():.2f} .. {p[:, 0].max():.2f}",
+                  f"{p[:, 1].min():.2f} .. {p[:, 1].max():.2f}")
+    Console().print(t)
+    out = Path(args.out if args.out != "scene.png" else "scene_top.png")
+    top_down(desc).save(out)
+    print(f"wrote {out} (top-down, stages outlined)")
     return 0
 
 
@@ -281,9 +307,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_diff)
 
-    p = sub.add_parser("scenes", help="list built-in scenes and their stages, or preview one")
-    p.add_argument("action", nargs="?", choices=["list", "preview"], default="list")
-    p.add_argument("name", nargs="?")
+    p = sub.add_parser("scenes", help="list built-in scenes and their stages, preview one, or show a scene's stages")
+    p.add_argument("action", nargs="?", choices=["list", "preview", "show"], default="list")
+    p.add_argument("name", nargs="?", help="built-in scene name, or (show) a scene file")
+    p.add_argument("--clearance", type=float, default=None,
+                   help="show: free space (m) a found stage needs above it (default 0.6; builds use the "
+                        "largest drop height + the largest object)")
     p.add_argument("--backend", default="cycles", help="a backend that draws scenes: cycles or mitsuba")
     p.add_argument("--out", default="scene.png")
     p.add_argument("--width", type=int, default=640)

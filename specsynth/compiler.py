@@ -15,7 +15,7 @@ from typing import Iterator
 
 from . import keys, seeds
 from .assets import AssetError, check_texture, expand_path, file_digest, object_fingerprints
-from .scenes import scene_fingerprint, stage_table
+from .scenes import declares_stages, scene_fingerprint, stage_table
 from .spec import DatasetSpec
 from .yamlio import LoadedSpec, SpecError
 
@@ -201,7 +201,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     for i, ref in enumerate(spec.scenes):
         try:
             scene_hashes[f"scene:{ref.ref}"] = scene_fingerprint(ref, loaded.directory)
-            if ref.stages:
+            if ref.stages and declares_stages(ref, loaded.directory):
+                # Found stages depend on the objects' sizes: their names are checked when the scene loads.
                 known = {st.name for st, _, _ in stage_table(ref, loaded.directory)}
                 unknown = [n for n in ref.stages if n not in known]
                 if unknown:

@@ -68,7 +68,8 @@ class Worker:
 
     def scene(self, ref: SceneRef) -> SceneDesc:
         if ref.ref not in self._scenes:
-            self._scenes[ref.ref] = load_scene(ref, self.ctx.spec_dir)
+            clearance = self.spec.arrangements.drop_height[1] + max((a.diameter for a in self.assets()), default=0.0)
+            self._scenes[ref.ref] = load_scene(ref, self.ctx.spec_dir, clearance=clearance)
         return self._scenes[ref.ref]
 
     def annotator(self):

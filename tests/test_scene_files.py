@@ -193,3 +193,169 @@ def test_both_textures_show_in_a_real_render(byo, tmp_path, backend):
     blue_tiles = (b > r + 30) & (b > g + 10)  # the checker's dark tiles (70, 95, 140)
     wood = (r > b + 60) & (r > g + 20)  # the table top (150-210, 90-130, 45-65)
     assert blue_tiles.mean() > 0.02 and wood.mean() > 0.02, (blue_tiles.mean(), wood.mean())
+
+
+# --------------------------------------------------------------------------- automatic stages
+
+
+def _box_tris(lo, hi) -> np.ndarray:
+    import trimesh
+
+    b = trimesh.creation.box(bounds=[lo, hi])
+    return np.asarray(b.vertices)[b.faces]
+
+
+def test_found_stages_are_real_free_upward_surfaces():
+    from specsynth.scenes.autostage import AutoStageParams, find_stages
+
+    floor = _box_tris((-2, -2, -0.05), (2, 2, 0.0))
+    table = _box_tris((0.5, 0.5, 0.70), (1.5, 1.3, 0.74))
+    legs = np.concatenate([_box_tris((x, y, 0.0), (x + 0.05, y + 0.05, 0.70)) for x in (0.5, 1.45) for y in (0.5, 1.25)])
+    board = _box_tris((-1.8, -1.8, 0.10), (-0.6, -1.4, 0.12))  # a shelf board 10 cm above the floor
+    stages = find_stages(np.concatenate([floor, table, legs, board]), AutoStageParams(clearance=0.6))
+    heights = sorted({s.height for s in stages})
+    assert heights == pytest.approx([0.0, 0.12, 0.74], abs=0.006)
+    top = [s for s in stages if abs(s.height - 0.74) < 0.01]
+    assert len(top) == 1 and top[0].area == pytest.approx((1.0 - 0.06) * (0.8 - 0.06), rel=0.08)
+    floor_stages = [s for s in stages if s.height < 0.01]
+    for s in floor_stages:
+        # Never under the board, nor under the table top (0.70 m < clearance from the floor? no: 0.6),
+        # and never where a leg stands.
+        under_board = s.contains(np.array([[-1.2, -1.6]]))[0]
+        assert not under_board
+        assert not s.contains(np.array([[0.52, 0.52]]))[0]
+    names = [s.name for s in stages]
+    assert len(set(names)) == len(names) and "auto_0740mm_1" in names
+    assert [s.name for s in find_stages(np.concatenate([floor, table, legs, board]), AutoStageParams(clearance=0.6))] == names
+
+
+def test_a_low_clearance_allows_the_floor_under_the_table_and_a_high_one_forbids_it():
+    from specsynth.scenes.autostage import AutoStageParams, find_stages
+
+    scene = np.concatenate([_box_tris((-2, -2, -0.05), (2, 2, 0.0)), _box_tris((-0.5, -0.5, 0.70), (0.5, 0.5, 0.74))])
+    under = np.array([[0.0, 0.0]])
+    low = [s for s in find_stages(scene, AutoStageParams(clearance=0.5)) if s.height < 0.01]
+    high = [s for s in find_stages(scene, AutoStageParams(clearance=0.9)) if s.height < 0.01]
+    assert any(s.contains(under)[0] for s in low)
+    assert not any(s.contains(under)[0] for s in high)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_largest_rectangle_matches_brute_force(seed):
+    from specsynth.scenes.autostage import largest_rectangle
+
+    rng = np.random.default_rng(seed)
+    m = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 9)))) < rng.uniform(0.3, 0.95)
+    best = 0
+    for r0 in range(m.shape[0]):
+        for r1 in range(r0, m.shape[0]):
+            for c0 in range(m.shape[1]):
+                for c1 in range(c0, m.shape[1]):
+                    if m[r0 : r1 + 1, c0 : c1 + 1].all():
+                        best = max(best, (r1 - r0 + 1) * (c1 - c0 + 1))
+    area, a, b, c, d = largest_rectangle(m)
+    assert area == best
+    if area:
+        assert m[a : c + 1, b : d + 1].all() and (c - a + 1) * (d - b + 1) == area
+
+
+def test_scene_without_stages_finds_them_and_show_draws_them(byo, tmp_path, capsys):
+    from specsynth.cli import main
+
+    desc = _load(byo, tmp_path / "cache")
+    heights = sorted({round(s.height, 3) for s in desc.stages.values()})
+    assert heights == [0.0, 0.72]  # the floor and the table top; never under the table
+    rc = main(["scenes", "show", str(byo / "scene.yaml"), "--out", str(tmp_path / "top.png"), "--clearance", "0.7"])
+    assert rc == 0 and "auto_0720mm_1" in capsys.readouterr().out
+    from PIL import Image
+
+    img = np.asarray(Image.open(tmp_path / "top.png").convert("RGB")).astype(int)
+    assert img.shape[0] > 300 and ((img[..., 0] > 180) & (img[..., 1] < 120)).sum() > 100  # outlines drawn
+
+
+def test_no_usable_stage_is_a_located_error(tmp_path):
+    (tmp_path / "wall.yaml").write_text("version: 1\nname: w\nmeshes:\n  - {name: wall, source: {box: [0.1, 2, 2]}}\n")
+    with pytest.raises(SceneError, match=r"wall.yaml: stages: none found automatically"):
+        _load(tmp_path, tmp_path / "cache", "wall.yaml")
+
+
+# --------------------------------------------------------------------------- a glTF file as the scene
+
+
+def _with_json(glb: bytes, edit) -> bytes:
+    n, = struct.unpack_from("<I", glb, 12)
+    doc = json.loads(glb[20 : 20 + n])
+    edit(doc)
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    rest = glb[20 + n :]
+    return struct.pack("<4sII", b"glTF", 2, 20 + len(js) + len(rest)) + struct.pack("<II", len(js), 0x4E4F534A) + js + rest
+
+
+def test_gltf_scene_imports_punctual_lights_with_photometric_units(byo, tmp_path):
+    import math
+
+    def add_lights(doc):
+        doc.setdefault("extensionsUsed", []).append("KHR_lights_punctual")
+        doc.setdefault("extensions", {})["KHR_lights_punctual"] = {"lights": [
+            {"type": "point", "intensity": 100.0, "color": [1, 0.9, 0.8]},
+            {"type": "spot", "intensity": 50.0, "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.4}},
+            {"type": "directional", "intensity": 3000.0},
+        ]}
+        base = len(doc["nodes"])
+        doc["nodes"] += [
+            {"translation": [0, 2.5, 0], "extensions": {"KHR_lights_punctual": {"light": 0}}},
+            {"translation": [1, 2, 1], "rotation": [-0.7071068, 0, 0, 0.7071068],  # -90 deg about X: points down
+             "extensions": {"KHR_lights_punctual": {"light": 1}}},
+            {"extensions": {"KHR_lights_punctual": {"light": 2}}},
+        ]
+        doc["scenes"][doc.get("scene", 0)]["nodes"] += [base, base + 1, base + 2]
+
+    (tmp_path / "lit.glb").write_bytes(_with_json((byo / "room.glb").read_bytes(), add_lights))
+    desc = load_scene(SceneRef(file=str(tmp_path / "lit.glb")), tmp_path, cache=tmp_path / "cache")
+    point, spot, sun = desc.lights
+    assert point.kind == "point" and point.power == pytest.approx(100 * 4 * math.pi / 683)
+    assert point.matrix[:3, 3] == pytest.approx([0, 0, 2.5])  # glTF y up -> our z up
+    assert point.color == pytest.approx((1, 0.9, 0.8))
+    assert spot.spot_angle == pytest.approx(math.degrees(0.8)) and spot.spot_blend == pytest.approx(0.5)
+    assert spot.matrix[:3, 3] == pytest.approx([1, -1, 2])
+    assert spot.matrix[:3, 2] == pytest.approx([0, 0, 1], abs=1e-6)  # local +Z up: it emits along -Z, down
+    assert sun.kind == "sun" and sun.power == pytest.approx(3000 / 683)
+    assert desc.world.kind == "color"  # lights given: no default HDRI
+    assert {s.height for s in desc.stages.values()} == {0.0}
+
+
+def test_gltf_scene_without_lights_gets_the_default_hdri(byo, tmp_path):
+    pytest.importorskip("bpy")  # the built-in HDRIs ship with bpy
+    desc = load_scene(SceneRef(file=str(byo / "room.glb")), byo, cache=tmp_path / "cache")
+    assert desc.world.kind == "envmap" and desc.world.envmap.endswith("interior.exr") and not desc.lights
+
+
+def test_scene_parse_errors_never_echo_the_file(tmp_path):
+    secret = "root:x:0:0:supersecret:/root:/bin/bash"
+    (tmp_path / "bad.yaml").write_text(f"name: [unclosed\n{secret}\n")
+    with pytest.raises(SceneError) as e:
+        _load(tmp_path, tmp_path / "cache", "bad.yaml")
+    assert "supersecret" not in str(e.value) and "bad.yaml:" in str(e.value)
+    (tmp_path / "bin.yaml").write_bytes(b"\x89PNG\x00\xff\xfe" + secret.encode())
+    with pytest.raises(SceneError, match="not a text file") as e:
+        _load(tmp_path, tmp_path / "cache", "bin.yaml")
+    assert "supersecret" not in str(e.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["cycles", "mitsuba"])
+def test_a_glb_given_directly_as_the_scene_builds(byo, tmp_path, backend):
+    from specsynth.cli import main
+
+    spec = (byo / "spec.yaml").read_text().replace("scenes: [{file: scene.yaml}]", "scenes: [{file: room.glb}]")
+    (byo / "spec_glb.yaml").write_text(spec)
+    opts = "{name: cycles, samples: 4, denoise: true}" if backend == "cycles" else "{name: mitsuba, samples: 4}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["build", str(byo / "spec_glb.yaml"), "--out", str(tmp_path / "out"), "--quiet",
+                   "--set", f"backend={opts}", "--set", "arrangements.count=1", "--set", "cameras.per_arrangement=2"])
+    assert rc == 0
+    gt = json.loads((tmp_path / "out/bop/train_pbr/000000/scene_gt_info.json").read_text())
+    # Every accepted view sees its focused object at least 30 % (the visibility pre-check).
+    assert len(gt) == 2 and all(max(g["visib_fract"] for g in im) >= 0.3 for im in gt.values())

@@ -8,7 +8,7 @@ Files (all generated here, nothing downloaded):
   back wall (plain plaster colour), two nodes sharing one wall mesh (instancing);
 - ``table.obj`` + ``table.mtl`` + ``wood.png``: a table whose top has ``map_Kd`` wood and whose
   legs are a dark metal (``Kd``, ``Pm``, ``Ns``);
-- ``scene.yaml``: both meshes, a ceiling light, a grey world, stages on the floor and table top;
+- ``scene.yaml``: both meshes, a ceiling light, a grey world, and no stages: specsynth finds them;
 - ``spec.yaml``: six built-in objects dropped onto those stages.
 """
 
@@ -112,9 +112,7 @@ lights:
   - {{kind: area, power: 120, size: [1.0, 1.0], translation: [0, 0, 2.6]}}
   - {{kind: point, power: 60, translation: [1.2, 1.2, 1.8]}}
 world: {{color: [0.15, 0.15, 0.16]}}
-stages:
-  - {{name: table_top, height: {TABLE_TOP}, polygon: [[-0.2, -0.15], [0.8, -0.15], [0.8, 0.55], [-0.2, 0.55]]}}
-  - {{name: floor, height: 0.0, polygon: [[-1.3, -1.3], [-0.4, -1.3], [-0.4, -0.4], [-1.3, -0.4]]}}
+# No stages: they are found in the geometry (the table top and the free floor).
 """
 
 SPEC_YAML = """\

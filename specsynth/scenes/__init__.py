@@ -22,17 +22,18 @@ from pydantic import ValidationError
 from .. import assets
 from ..assets import AssetError
 from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
-from ..meshio import MeshData
+from ..meshio import MeshData, read_mesh
 from . import procedural
 from .. import meshfiles
-from . import filemeshes
+from . import autostage, filemeshes, gltfscene
 from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
 from .types import SceneDesc, Stage
 
 BUILTIN_DIR = Path(__file__).parent / "builtin"
 SCENE_VERSION = 2  # 2: glTF/OBJ sources keep every material. Bump when load_scene's output changes for the same file
 
-__all__ = ["SceneError", "builtin_scenes", "load_scene", "read_scene_file", "scene_fingerprint", "stage_table"]
+__all__ = ["SceneError", "builtin_scenes", "declares_stages", "load_scene", "read_scene_file", "scene_fingerprint",
+           "stage_table"]
 
 
 class SceneError(AssetError):
@@ -49,7 +50,7 @@ def _scene_path(ref, spec_dir: Path) -> Path:
     file = getattr(ref, "file", None)
     if name is None and file is None:
         s = str(ref)
-        if s.endswith((".yaml", ".yml", ".json")) or "/" in s or "\\" in s:
+        if s.endswith((".yaml", ".yml", ".json", ".glb", ".gltf")) or "/" in s or "\\" in s:
             file = s
         else:
             name = s
@@ -65,6 +66,22 @@ def _scene_path(ref, spec_dir: Path) -> Path:
 
 
 # --------------------------------------------------------------------------- reading + validation
+
+
+def _error_place(e: Exception) -> str:
+    mark = getattr(e, "problem_mark", None)
+    if mark is not None:
+        return f":{mark.line + 1}:{mark.column + 1}"
+    if isinstance(e, json.JSONDecodeError):
+        return f":{e.lineno}:{e.colno}"
+    return ""
+
+
+def _error_reason(e: Exception) -> str:
+    """The parser's reason without the excerpt of the file it quotes (errors never echo contents)."""
+    if isinstance(e, json.JSONDecodeError):
+        return e.msg
+    return str(getattr(e, "problem", None) or type(e).__name__)
 
 
 def _node_at(node, loc) -> yaml.Node | None:
@@ -84,11 +101,19 @@ def _node_at(node, loc) -> yaml.Node | None:
 
 def read_scene_file(path: Path) -> SceneFile:
     path = Path(path)
-    text = path.read_text()
+    if path.suffix.lower() in (".glb", ".gltf"):
+        try:
+            return gltfscene.scene_from_gltf(path)
+        except meshfiles.MeshFileError as e:
+            raise SceneError(str(e) if str(e).startswith(str(path)) else f"{path}: {e}") from None
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: not a text file; a scene is YAML, JSON, or a glTF/GLB file") from None
     try:
         data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as e:
-        raise SceneError(f"{path}: cannot parse: {e}") from e
+        raise SceneError(f"{path}{_error_place(e)}: cannot parse ({_error_reason(e)})") from None
     if not isinstance(data, dict):
         raise SceneError(f"{path}: a scene file is a mapping (name, meshes, lights, world, stages)")
     try:
@@ -282,8 +307,11 @@ def _stage(sd) -> Stage:
     return Stage(name=sd.name, polygon=tuple(poly), height=float(sd.height))
 
 
-def load_scene(ref, spec_dir: Path, cache: Path | None = None) -> SceneDesc:
-    """Resolve a scene (built-in name, SceneRef, or file) into a ``SceneDesc``; meshes cached."""
+def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float | None = None) -> SceneDesc:
+    """Resolve a scene (built-in name, SceneRef, or file) into a ``SceneDesc``; meshes cached.
+
+    ``clearance`` (metres of free space a stage needs above it: the spec's largest drop height plus
+    its largest object) only matters to a scene whose stages are found automatically."""
     path = _scene_path(ref, spec_dir)
     sf = read_scene_file(path)
     cache = Path(cache) if cache is not None else assets.cache_dir()
@@ -304,7 +332,10 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None) -> SceneDesc:
                                        material=material))
             if m.collide:
                 colliders.append(name)
-    stages = {s.name: _stage(s) for s in sf.stages}
+    if sf.auto_stages:
+        stages = _auto_stages(path, meshes, colliders, clearance)
+    else:
+        stages = {s.name: _stage(s) for s in sf.stages}
     wanted = getattr(ref, "stages", None)
     if wanted:
         unknown = [s for s in wanted if s not in stages]
@@ -348,6 +379,29 @@ def _load_mesh(m: SceneMesh, path: Path, cache: Path, what: str) -> list[tuple[s
             for name, mname, ply, mesh_key, mat in parts]
 
 
+def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], clearance: float | None) -> dict[str, Stage]:
+    solid = set(colliders)
+    tris = []
+    for m in meshes:
+        if m.name in solid:
+            data = read_mesh(m.mesh_path)
+            T = m.matrix
+            tris.append((data.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3])[data.faces])
+    params = autostage.AutoStageParams() if clearance is None else autostage.AutoStageParams(clearance=clearance)
+    found = autostage.find_stages(np.concatenate(tris) if tris else np.zeros((0, 3, 3)), params)
+    if not found:
+        raise SceneError(
+            f"{path}: stages: none found automatically (no upward surface of at least "
+            f"{params.min_side} x {params.min_side} m with {params.clearance:.2f} m free above it); declare 'stages:'"
+        )
+    return {s.name: s for s in found}
+
+
+def declares_stages(ref, spec_dir: Path) -> bool:
+    """Whether a scene lists its stages (else they are found in its geometry at load time)."""
+    return not read_scene_file(_scene_path(ref, spec_dir)).auto_stages
+
+
 def scene_fingerprint(ref, spec_dir: Path) -> str:
     """Content hash of a scene: its file and every file it references (no mesh conversion)."""
     path = _scene_path(ref, spec_dir)
@@ -376,4 +430,8 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
 def stage_table(name, spec_dir: Path | None = None) -> list[tuple[Stage, float, float]]:
     """(stage, area m^2, height m) of a scene's stages, from the file alone (no meshes built)."""
     path = _scene_path(name, Path(spec_dir) if spec_dir is not None else Path.cwd())
-    return [(st, st.area, st.height) for st in (_stage(s) for s in read_scene_file(path).stages)]
+    sf = read_scene_file(path)
+    if sf.auto_stages:
+        desc = load_scene(name, Path(spec_dir) if spec_dir is not None else Path.cwd())
+        return [(st, st.area, st.height) for st in desc.stages.values()]
+    return [(st, st.area, st.height) for st in (_stage(s) for s in sf.stages)]

@@ -251,11 +251,19 @@ class SceneFile(_Strict):
     meshes: list[SceneMesh] = Field(default_factory=list)
     lights: list[LightDef] = Field(default_factory=list)
     world: World = World(color=(0.05, 0.05, 0.05))
-    stages: list[StageDef] = Field(min_length=1)
+    stages: Union[Annotated[list[StageDef], Field(min_length=1)], Literal["auto"]] = Field(
+        "auto",
+        description="Support polygons to drop objects on; 'auto' (the default) finds them in the geometry: "
+        "upward surfaces with room above them (specsynth.scenes.autostage).",
+    )
+
+    @property
+    def auto_stages(self) -> bool:
+        return self.stages == "auto"
 
     @model_validator(mode="after")
     def _unique(self):
-        for what, items in (("mesh", self.meshes), ("stage", self.stages)):
+        for what, items in (("mesh", self.meshes), ("stage", [] if self.auto_stages else self.stages)):
             seen = set()
             for it in items:
                 if it.name in seen:

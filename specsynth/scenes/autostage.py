@@ -1,0 +1,153 @@
+"""Stages found in a scene's geometry: free, upward-facing surfaces that objects can be dropped on.
+
+Pure numpy, deterministic. The collider triangles are sampled into a point cloud (a fixed
+low-discrepancy pattern per triangle, no RNG) and binned on an XY grid. For each height level of
+upward-facing samples (normal within ``max_tilt`` of +Z), a grid cell is a stage cell when:
+
+- it holds upward samples at that level (there is a surface to land on), and
+- no geometry lies in the slab ``(level, level + clearance]`` above it (room to drop: a floor under
+  a shelf board 10 cm up is not a stage, and the feet of what stands on a surface are cut out).
+
+Stage cells are shrunk by ``margin`` and covered greedily by the largest axis-aligned rectangles
+(each at least ``min_side`` on both sides): exact polygons, and what tables, shelves, counters and
+open floor are. Names are stable for the same geometry: ``auto_<height mm>_<rank>``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .types import Stage
+
+MAX_SAMPLES = 8_000_000  # the sampling spacing grows past this, so huge scenes stay bounded
+MAX_GRID_CELLS = 400 * 400  # likewise for the XY grid
+
+
+@dataclass(frozen=True)
+class AutoStageParams:
+    clearance: float = 0.6  # metres of free space above a stage (drop height + object size)
+    cell: float = 0.02  # metres, XY grid
+    max_tilt_deg: float = 10.0
+    height_tol: float = 0.01  # metres: samples this close in height form one level
+    margin: float = 0.03  # metres kept free along a stage's edges
+    min_side: float = 0.15  # metres: narrower rectangles are not stages
+    max_per_level: int = 4
+
+
+def sample_triangles(tris: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the triangles (about one per spacing^2) and each point's unit face normal."""
+    tris = np.asarray(tris, np.float64)
+    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    cross = np.cross(e1, e2)
+    area2 = np.linalg.norm(cross, axis=1)
+    keep = area2 > 1e-12
+    tris, e1, e2, cross, area2 = tris[keep], e1[keep], e2[keep], cross[keep], area2[keep]
+    n = np.ceil(0.5 * area2 / spacing**2).astype(np.int64) + 1
+    if n.sum() > MAX_SAMPLES:
+        return sample_triangles(tris, spacing * math.sqrt(n.sum() / MAX_SAMPLES))
+    owner = np.repeat(np.arange(len(tris)), n)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(n) - n, n)  # index of the sample within its triangle
+    # R2 low-discrepancy sequence, folded from the unit square into the triangle.
+    g = 1.32471795724474602596
+    u = (0.5 + k / g) % 1.0
+    v = (0.5 + k / g**2) % 1.0
+    fold = u + v > 1.0
+    u[fold], v[fold] = 1.0 - u[fold], 1.0 - v[fold]
+    pts = tris[owner, 0] + u[:, None] * e1[owner] + v[:, None] * e2[owner]
+    normals = cross[owner] / area2[owner, None]
+    return pts, normals
+
+
+def height_levels(z: np.ndarray, tol: float, min_count: int) -> list[float]:
+    """Heights where upward samples cluster (gaps > tol split levels), each its samples' median."""
+    if len(z) == 0:
+        return []
+    zs = np.sort(z)
+    breaks = np.flatnonzero(np.diff(zs) > tol) + 1
+    return [float(np.median(g)) for g in np.split(zs, breaks) if len(g) >= min_count]
+
+
+def _erode(mask: np.ndarray, r: int) -> np.ndarray:
+    """Cells whose whole (2r+1)^2 neighbourhood is in the mask."""
+    if r <= 0:
+        return mask
+    pad = np.pad(mask.astype(np.int32), r)
+    s = pad.cumsum(0).cumsum(1)
+    s = np.pad(s, ((1, 0), (1, 0)))
+    w = 2 * r + 1
+    h, wd = mask.shape
+    box = s[w : w + h, w : w + wd] - s[:h, w : w + wd] - s[w : w + h, :wd] + s[:h, :wd]
+    return box == w * w
+
+
+def largest_rectangle(mask: np.ndarray) -> tuple[int, int, int, int, int]:
+    """(area, row0, col0, row1, col1) of the largest all-True rectangle (inclusive bounds).
+    Row by row, the column heights of True cells form a histogram; a stack finds its largest
+    rectangle in one pass."""
+    best = (0, 0, 0, -1, -1)
+    ncols = mask.shape[1]
+    heights = np.zeros(ncols, np.int64)
+    for r in range(mask.shape[0]):
+        heights = np.where(mask[r], heights + 1, 0)
+        hs = heights.tolist() + [0]
+        stack: list[int] = []
+        for c, h in enumerate(hs):
+            while stack and hs[stack[-1]] >= h:
+                top = stack.pop()
+                left = stack[-1] + 1 if stack else 0
+                area = hs[top] * (c - left)
+                if area > best[0]:
+                    best = (area, r - hs[top] + 1, left, r, c - 1)
+            stack.append(c)
+    return best
+
+
+def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams()) -> list[Stage]:
+    """Stages of a scene from its collider triangles (T, 3, 3), world metres, +Z up."""
+    triangles = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
+    if len(triangles) == 0:
+        return []
+    lo = triangles.reshape(-1, 3).min(0)
+    hi = triangles.reshape(-1, 3).max(0)
+    cell = max(params.cell, math.sqrt((hi[0] - lo[0]) * (hi[1] - lo[1]) / MAX_GRID_CELLS))
+    pts, normals = sample_triangles(triangles, cell / 2)
+    shape = (int((hi[1] - lo[1]) / cell) + 1, int((hi[0] - lo[0]) / cell) + 1)
+    rows = np.clip(((pts[:, 1] - lo[1]) / cell).astype(np.int64), 0, shape[0] - 1)
+    cols = np.clip(((pts[:, 0] - lo[0]) / cell).astype(np.int64), 0, shape[1] - 1)
+    up = normals[:, 2] >= math.cos(math.radians(params.max_tilt_deg))
+    min_cells = (params.min_side / cell) ** 2
+    stages = []
+    for level in height_levels(pts[up, 2], params.height_tol, int(min_cells)):
+        on = up & (np.abs(pts[:, 2] - level) <= params.height_tol)
+        above = (pts[:, 2] > level + params.height_tol) & (pts[:, 2] <= level + params.clearance)
+        support = np.zeros(shape, bool)
+        support[rows[on], cols[on]] = True
+        blocked = np.zeros(shape, bool)
+        blocked[rows[above], cols[above]] = True
+        free = _erode(support & ~blocked, int(math.ceil(params.margin / cell)))
+        stages += _rectangles(free, level, lo, cell, params)
+    return stages
+
+
+def _rectangles(free: np.ndarray, level: float, lo: np.ndarray, cell: float, params: AutoStageParams) -> list[Stage]:
+    out = []
+    min_cells = int(math.ceil(params.min_side / cell))
+    free = free.copy()
+    for rank in range(1, params.max_per_level + 1):
+        if not free.any():
+            break
+        ys, xs = np.nonzero(free)  # search only the bounding box of what is left
+        r0, c0 = ys.min(), xs.min()
+        area, a, b, c, d = largest_rectangle(free[r0 : ys.max() + 1, c0 : xs.max() + 1])
+        if area == 0 or (c - a + 1) < min_cells or (d - b + 1) < min_cells:
+            break
+        a, b, c, d = a + r0, b + c0, c + r0, d + c0
+        free[a : c + 1, b : d + 1] = False
+        x0, x1 = lo[0] + b * cell, lo[0] + (d + 1) * cell
+        y0, y1 = lo[1] + a * cell, lo[1] + (c + 1) * cell
+        poly = tuple((round(float(x), 6), round(float(y), 6)) for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1)))
+        out.append(Stage(name=f"auto_{int(round(level * 1000)):04d}mm_{rank}", polygon=poly, height=round(level, 6)))
+    return out
