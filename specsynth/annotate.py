@@ -167,6 +167,14 @@ class _CachedMesh:
         return self._hull
 
 
+def _cache_key(inst: MeshInstance) -> str:
+    """Meshes are cached by content; one cut by a coverage map also by the map and its mapping."""
+    m = inst.material
+    if not m.transparent:
+        return inst.mesh_key
+    return f"{inst.mesh_key}|{m.opacity_texture}|{m.opacity >= 0.5}|{m.uv_transform}|{m.wrap}"
+
+
 class Annotator:
     """Annotation engine for one image size; load a :class:`RenderScene` once per arrangement."""
 
@@ -179,6 +187,7 @@ class Annotator:
         # SEG turns multisampling off (pixel-centre coverage); culling off for bad winding
         self._flags = F.DEPTH_ONLY | F.SEG | F.SKIP_CULL_FACES
         self._renderer = pyrender.OffscreenRenderer(self.width, self.height)
+        glutil.use_depth_pass(self._renderer)  # both faces drawn; coverage maps cut holes
         self._pscene = pyrender.Scene(bg_color=(0, 0, 0, 0), ambient_light=(0, 0, 0))
         self._camera = glutil.KCamera(np.eye(3), 0.01, 100.0)
         self._camera_node = self._pscene.add(self._camera)
@@ -211,22 +220,44 @@ class Annotator:
         self._evict()
 
     def _mesh(self, inst: MeshInstance) -> _CachedMesh:
-        cached = self._cache.get(inst.mesh_key)
+        key = _cache_key(inst)
+        cached = self._cache.get(key)
         if cached is None:
             data = read_mesh(inst.mesh_path).validate(inst.mesh_path)
+            m = inst.material
+            coverage = m.opacity_texture if (m.transparent and data.uv is not None) else None
             prim = self._pr.Primitive(
                 positions=data.vertices.astype(np.float32),
                 indices=data.faces.astype(np.uint32),
+                texcoord_0=None if coverage is None else data.uv.astype(np.float32),
+                material=None if coverage is None else self._coverage_material(m),
                 mode=self._pr.constants.GLTF.TRIANGLES,
             )
             mesh = self._pr.Mesh([prim])
-            keeper = self._pscene.add(mesh, name=f"keep:{inst.mesh_key}")
-            cached = self._cache[inst.mesh_key] = _CachedMesh(mesh, keeper, data.vertices)
-        self._cache.move_to_end(inst.mesh_key)
+            mesh.is_visible = not (m.transparent and m.opacity_texture is None and m.opacity < 0.5)
+            keeper = self._pscene.add(mesh, name=f"keep:{key}")
+            cached = self._cache[key] = _CachedMesh(mesh, keeper, data.vertices)
+        self._cache.move_to_end(key)
         return cached
 
+    def _coverage_material(self, m):
+        """A pyrender material carrying the coverage map (drawn by glutil.use_depth_pass)."""
+        from PIL import Image
+
+        pr = self._pr
+        wrap = {"repeat": pr.constants.GLTF.REPEAT, "clamp": pr.constants.GLTF.CLAMP_TO_EDGE,
+                "mirror": pr.constants.GLTF.MIRRORED_REPEAT}[m.wrap]
+        with Image.open(m.opacity_texture) as im:
+            texels = np.asarray(im.convert("L"))
+        sampler = pr.Sampler(magFilter=pr.constants.GLTF.NEAREST, minFilter=pr.constants.GLTF.NEAREST,
+                             wrapS=wrap, wrapT=wrap)
+        material = pr.MetallicRoughnessMaterial(
+            baseColorTexture=pr.Texture(source=texels, source_channels="R", sampler=sampler))
+        material.uv_rows = (tuple(m.uv_transform[:3]), tuple(m.uv_transform[3:]))
+        return material
+
     def _evict(self) -> None:
-        in_use = {m.mesh_key for m in self._scene.meshes} if self._scene else set()
+        in_use = {_cache_key(m) for m in self._scene.meshes} if self._scene else set()
         for key in list(self._cache):
             if len(self._cache) <= self._max_cached:
                 break

@@ -67,3 +67,41 @@ def discard_renderer(renderer: pyrender.OffscreenRenderer) -> None:
     """Forget a renderer whose context is already gone, making no GL call."""
     renderer._renderer = None
     renderer._platform = None
+
+
+SHADER_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "shaders")
+
+
+def use_depth_pass(renderer: pyrender.OffscreenRenderer) -> None:
+    """Make a renderer's SEG pass what the annotation engine needs (it renders nothing else).
+
+    pyrender's SEG pass culls back faces whatever the flags say, so a camera behind a wall saw
+    through it; here both faces of every triangle are drawn. And a primitive whose material has a
+    ``baseColorTexture`` uses it as a coverage map: texels under one half are holes.
+    """
+    inner = renderer._renderer
+    inner._program_cache = pyrender.shader_program.ShaderProgramCache(shader_dir=SHADER_DIR)
+    inner._bind_and_draw_primitive = _draw_both_faces.__get__(inner)
+
+
+def _draw_both_faces(self, primitive, pose, program, flags):
+    from OpenGL import GL
+
+    program.set_uniform("M", pose)
+    primitive._bind()
+    material = primitive.material
+    if primitive.texcoord_0 is not None and material is not None and material.baseColorTexture is not None:
+        self._bind_texture(material.baseColorTexture, "coverage", program)
+        rows = getattr(material, "uv_rows", ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
+        program.set_uniform("uv_row0", np.asarray(rows[0], np.float32))
+        program.set_uniform("uv_row1", np.asarray(rows[1], np.float32))
+    GL.glDisable(GL.GL_CULL_FACE)
+    GL.glEnable(GL.GL_BLEND)
+    GL.glBlendFunc(GL.GL_ONE, GL.GL_ZERO)
+    GL.glPolygonMode(GL.GL_FRONT_AND_BACK, GL.GL_FILL)
+    n = 1 if primitive.poses is None else len(primitive.poses)
+    if primitive.indices is not None:
+        GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT, None, n)
+    else:
+        GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), n)
+    primitive._unbind()

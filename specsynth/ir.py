@@ -22,8 +22,15 @@ from typing import Literal
 import numpy as np
 
 
+IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
 @dataclass(frozen=True)
 class MaterialIR:
+    """A metallic-roughness material. Every texture is an image file read through the mesh's UVs
+    (OpenGL convention, v up), after ``uv_transform``, with ``wrap`` at the borders. Importers bake
+    factors into the grey-level maps, so each map *is* the value it drives."""
+
     base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
     use_vertex_colors: bool = True  # multiply by the mesh's vertex colours when it has them
     texture: str | None = None  # base-colour image (sRGB-encoded file), needs UVs
@@ -32,11 +39,34 @@ class MaterialIR:
     specular: float = 0.5
     transmission: float = 0.0
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # radiance, W/(sr m^2), linear RGB
+    roughness_texture: str | None = None  # grey, linear: the roughness itself (replaces `roughness`)
+    metallic_texture: str | None = None  # grey, linear: the metallic value itself
+    normal_texture: str | None = None  # tangent-space normal map, linear RGB, OpenGL's +Y (green = +v)
+    emission_texture: str | None = None  # sRGB image multiplying `emission`
+    alpha_mode: Literal["opaque", "mask", "blend"] = "opaque"
+    opacity: float = 1.0  # without opacity_texture: constant coverage in [0, 1]
+    opacity_texture: str | None = None  # grey, linear coverage; for "mask" already 0 or 1
+    uv_transform: tuple[float, float, float, float, float, float] = IDENTITY_UV  # u' = a u + b v + c, v' = d u + e v + f
+    wrap: Literal["repeat", "clamp", "mirror"] = "repeat"
+    double_sided: bool = True  # informational: Cycles and Mitsuba shade both sides of every surface
+
+    @property
+    def textures(self) -> tuple[str, ...]:
+        """Every image file the material reads."""
+        maps = (self.texture, self.roughness_texture, self.metallic_texture, self.normal_texture,
+                self.emission_texture, self.opacity_texture)
+        return tuple(t for t in maps if t is not None)
+
+    @property
+    def transparent(self) -> bool:
+        return self.alpha_mode != "opaque" and (self.opacity < 1.0 or self.opacity_texture is not None)
 
     @property
     def glossy(self) -> bool:
         """Whether a path tracer needs glossy bounces for this material to look right."""
-        return self.metallic > 0.0 or (self.specular > 0.0 and self.roughness < 0.6)
+        if self.metallic > 0.0 or self.metallic_texture is not None:
+            return True
+        return self.specular > 0.0 and (self.roughness < 0.6 or self.roughness_texture is not None)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,9 @@ from typing import Any
 
 # Bump a stage's version when its code changes what it produces: its jobs and every
 # downstream job then re-run.
-STAGE_VERSIONS = {"arrange": 1, "view": 1, "render": 1}
+# view 2 / render 2: the annotation engine draws back faces (a camera behind a wall no longer sees
+# through it) and cuts coverage-mapped holes.
+STAGE_VERSIONS = {"arrange": 1, "view": 2, "render": 2}
 
 # Bump a built-in backend's revision when its images change for the same inputs and package
 # versions (a fix in its mapping): only that backend's renders re-run. Unlisted backends: 1.

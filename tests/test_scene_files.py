@@ -70,7 +70,7 @@ def test_obj_parts_map_mtl_statements(byo):
 
 def test_obj_missing_texture_warns_and_falls_back_to_kd(byo):
     (byo / "wood.png").unlink()
-    with pytest.warns(UserWarning, match=r"material 'wood_top': texture wood.png is missing; using Kd"):
+    with pytest.warns(UserWarning, match=r"material .wood_top.: base colour texture wood.png is missing; using Kd"):
         parts = {p.name: p for p in meshfiles.read_parts(byo / "table.obj", byo / "unused")}
     assert parts["wood_top"].material.texture is None
     assert parts["wood_top"].material.base_color == pytest.approx((0.8, 0.8, 0.8))
@@ -359,3 +359,15 @@ def test_a_glb_given_directly_as_the_scene_builds(byo, tmp_path, backend):
     gt = json.loads((tmp_path / "out/bop/train_pbr/000000/scene_gt_info.json").read_text())
     # Every accepted view sees its focused object at least 30 % (the visibility pre-check).
     assert len(gt) == 2 and all(max(g["visib_fract"] for g in im) >= 0.3 for im in gt.values())
+
+
+def test_a_gigantic_mesh_is_refused_before_rendering(tmp_path, monkeypatch):
+    from specsynth import meshfiles
+
+    monkeypatch.setattr(meshfiles, "MAX_TRIANGLES", 10)  # the same check, at a size a test can afford
+    import trimesh
+
+    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "ball.stl")
+    (tmp_path / "big.yaml").write_text("version: 1\nname: big\nmeshes:\n  - {name: ball, source: ball.stl}\n")
+    with pytest.raises(SceneError, match=r"big.yaml: meshes.ball: 320 triangles, over the 10 limit"):
+        _load(tmp_path, tmp_path / "cache", "big.yaml")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from specsynth.ir import LightIR, MaterialIR, MeshInstance, WorldIR
+from specsynth.ir import IDENTITY_UV, LightIR, MaterialIR, MeshInstance, WorldIR
 from specsynth.meshio import MeshData, read_mesh
 
 COLOR_ATTR = "Col"
@@ -51,6 +51,64 @@ def _link(nt, a, b):
     nt.links.new(a, b)
 
 
+_EXTENSION = {"repeat": "REPEAT", "clamp": "EXTEND", "mirror": "MIRROR"}
+
+
+class _Nodes:
+    """Node-building helpers for one material: every image shares one UV input (after the
+    material's uv_transform) and its wrap mode."""
+
+    def __init__(self, bpy, nt, m: MaterialIR):
+        self.bpy, self.nt, self.m = bpy, nt, m
+        self._uv = None
+
+    def new(self, kind: str, **attrs):
+        node = self.nt.nodes.new(kind)
+        for k, v in attrs.items():
+            setattr(node, k, v)
+        return node
+
+    def uv(self):
+        """UV socket, transformed: u' = a u + b v + c, v' = d u + e v + f (IR convention)."""
+        if self._uv is not None:
+            return self._uv
+        uvn = self.new("ShaderNodeUVMap", uv_map=UV_LAYER)
+        out = uvn.outputs["UV"]
+        if tuple(self.m.uv_transform) != IDENTITY_UV:
+            a, b, c, d, e, f = self.m.uv_transform
+            comb = self.new("ShaderNodeCombineXYZ")
+            for row, (x, y, t) in enumerate(((a, b, c), (d, e, f))):
+                dot = self.new("ShaderNodeVectorMath", operation="DOT_PRODUCT")
+                dot.inputs[1].default_value = (x, y, 0.0)
+                _link(self.nt, out, dot.inputs[0])
+                add = self.new("ShaderNodeMath", operation="ADD")
+                add.inputs[1].default_value = t
+                _link(self.nt, dot.outputs["Value"], add.inputs[0])
+                _link(self.nt, add.outputs[0], comb.inputs[row])
+            out = comb.outputs["Vector"]
+        self._uv = out
+        return out
+
+    def image(self, path: str, colour: bool, closest: bool = False):
+        img = self.bpy.data.images.load(str(Path(path)), check_existing=True)
+        img.colorspace_settings.name = "sRGB" if colour else "Non-Color"
+        tex = self.new("ShaderNodeTexImage", image=img, interpolation="Closest" if closest else "Linear",
+                       extension=_EXTENSION[self.m.wrap])
+        _link(self.nt, self.uv(), tex.inputs["Vector"])
+        return tex
+
+    def multiply(self, a, b):
+        mul = self.new("ShaderNodeVectorMath", operation="MULTIPLY")
+        _link(self.nt, a, mul.inputs[0])
+        _link(self.nt, b, mul.inputs[1])
+        return mul.outputs["Vector"]
+
+    def constant(self, rgb):
+        const = self.new("ShaderNodeRGB")
+        const.outputs[0].default_value = (*rgb, 1.0)
+        return const.outputs[0]
+
+
 def build_material(bpy, name: str, m: MaterialIR, *, has_colors: bool, has_uv: bool):
     mat = bpy.data.materials.new(name)
     nt = mat.node_tree
@@ -63,44 +121,55 @@ def build_material(bpy, name: str, m: MaterialIR, *, has_colors: bool, has_uv: b
     inp["Metallic"].default_value = float(m.metallic)
     inp["Specular IOR Level"].default_value = float(m.specular)
     inp["Transmission Weight"].default_value = float(m.transmission)
-    if any(c > 0 for c in m.emission):
-        inp["Emission Color"].default_value = (*m.emission, 1.0)
-        inp["Emission Strength"].default_value = 1.0  # strength 1: the colour is the radiance
-    else:
-        inp["Emission Strength"].default_value = 0.0
+    if m.textures and not has_uv:
+        raise ValueError(f"cycles: material of {name!r} has a texture but its mesh has no UVs")
+    nodes = _Nodes(bpy, nt, m)
+    _base_colour(nodes, inp, m, has_colors)
+    if m.roughness_texture:
+        _link(nt, nodes.image(m.roughness_texture, colour=False).outputs["Color"], inp["Roughness"])
+    if m.metallic_texture:
+        _link(nt, nodes.image(m.metallic_texture, colour=False).outputs["Color"], inp["Metallic"])
+    if m.normal_texture:
+        nmap = nodes.new("ShaderNodeNormalMap", space="TANGENT", uv_map=UV_LAYER)
+        nmap.inputs["Strength"].default_value = 1.0  # the scale is baked into the map (glTF's rule)
+        _link(nt, nodes.image(m.normal_texture, colour=False).outputs["Color"], nmap.inputs["Color"])
+        _link(nt, nmap.outputs["Normal"], inp["Normal"])
+    _emission(nodes, inp, m)
+    if m.transparent:
+        if m.opacity_texture:
+            tex = nodes.image(m.opacity_texture, colour=False, closest=m.alpha_mode == "mask")
+            _link(nt, tex.outputs["Color"], inp["Alpha"])
+        else:
+            inp["Alpha"].default_value = float(m.opacity)
+    return mat
 
-    # Base colour = constant x vertex colour x texture; multiply with vector math so nothing is clamped.
+
+def _base_colour(nodes: _Nodes, inp, m: MaterialIR, has_colors: bool) -> None:
+    """Base colour = constant x vertex colour x texture; vector math, so nothing is clamped."""
     factors = []
     if m.use_vertex_colors and has_colors:
-        vc = nt.nodes.new("ShaderNodeVertexColor")
-        vc.layer_name = COLOR_ATTR
-        factors.append(vc.outputs["Color"])
+        factors.append(nodes.new("ShaderNodeVertexColor", layer_name=COLOR_ATTR).outputs["Color"])
     if m.texture:
-        if not has_uv:
-            raise ValueError(f"cycles: material of {name!r} has a texture but its mesh has no UVs")
-        img = bpy.data.images.load(str(Path(m.texture)), check_existing=True)
-        img.colorspace_settings.name = "sRGB"
-        tex = nt.nodes.new("ShaderNodeTexImage")
-        tex.image = img
-        tex.interpolation = "Linear"
-        uvn = nt.nodes.new("ShaderNodeUVMap")
-        uvn.uv_map = UV_LAYER
-        _link(nt, uvn.outputs["UV"], tex.inputs["Vector"])
-        factors.append(tex.outputs["Color"])
+        factors.append(nodes.image(m.texture, colour=True).outputs["Color"])
     if not factors:
         inp["Base Color"].default_value = (*m.base_color, 1.0)
-        return mat
-    const = nt.nodes.new("ShaderNodeRGB")
-    const.outputs[0].default_value = (*m.base_color, 1.0)
-    out = const.outputs[0]
+        return
+    out = nodes.constant(m.base_color)
     for fac in factors:
-        mul = nt.nodes.new("ShaderNodeVectorMath")
-        mul.operation = "MULTIPLY"
-        _link(nt, out, mul.inputs[0])
-        _link(nt, fac, mul.inputs[1])
-        out = mul.outputs["Vector"]
-    _link(nt, out, inp["Base Color"])
-    return mat
+        out = nodes.multiply(out, fac)
+    _link(nodes.nt, out, inp["Base Color"])
+
+
+def _emission(nodes: _Nodes, inp, m: MaterialIR) -> None:
+    if not any(c > 0 for c in m.emission):
+        inp["Emission Strength"].default_value = 0.0
+        return
+    inp["Emission Strength"].default_value = 1.0  # strength 1: the colour is the radiance
+    if m.emission_texture:
+        out = nodes.multiply(nodes.constant(m.emission), nodes.image(m.emission_texture, colour=True).outputs["Color"])
+        _link(nodes.nt, out, inp["Emission Color"])
+    else:
+        inp["Emission Color"].default_value = (*m.emission, 1.0)
 
 
 def build_meshes(bpy, collection, meshes: tuple[MeshInstance, ...]) -> list:
@@ -117,7 +186,7 @@ def build_meshes(bpy, collection, meshes: tuple[MeshInstance, ...]) -> list:
             me.materials.append(None)  # one slot, filled per object
             mesh_cache[inst.mesh_key] = (me, data.colors is not None, data.uv is not None)
         me, has_colors, has_uv = mesh_cache[inst.mesh_key]
-        mkey = (inst.material, has_colors and inst.material.use_vertex_colors, has_uv and bool(inst.material.texture))
+        mkey = (inst.material, has_colors and inst.material.use_vertex_colors, has_uv and bool(inst.material.textures))
         if mkey not in mat_cache:
             mat_cache[mkey] = build_material(bpy, f"mat{len(mat_cache)}", inst.material, has_colors=has_colors, has_uv=has_uv)
         ob = bpy.data.objects.new(f"o{i}", me)

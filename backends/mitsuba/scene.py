@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from specsynth.colour import srgb_to_linear
-from specsynth.ir import LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR
+from specsynth.ir import IDENTITY_UV, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR
 from specsynth.meshio import MeshData
 
 from . import mapping
@@ -25,13 +25,27 @@ def _matrix(mi, T: np.ndarray):
     return mi.ScalarTransform4f(np.asarray(T, dtype=np.float64).tolist())
 
 
-def _texture_base(mi, material: MaterialIR):
-    """Base-colour texture premultiplied by base_color, in linear floats.
+_FLIP_V = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 1.0], [0.0, 0.0, 1.0]])  # IR v-up <-> Mitsuba rows down
 
-    Mitsuba has no 'multiply' texture, so the constant factor is baked into the pixels once per
-    arrangement (cheap next to the render), which keeps the shading exactly base * texture.
+
+def _sampling(mi, material: MaterialIR, nearest: bool = False) -> dict:
+    """How a bitmap is read: the material's UV transform (in Mitsuba's flipped v), wrap, filter."""
+    out = {"wrap_mode": material.wrap}
+    if nearest:
+        out["filter_type"] = "nearest"
+    if tuple(material.uv_transform) != IDENTITY_UV:
+        M = np.vstack([np.asarray(material.uv_transform, np.float64).reshape(2, 3), [0.0, 0.0, 1.0]])
+        out["to_uv"] = mi.ScalarTransform3f((_FLIP_V @ M @ _FLIP_V).tolist())
+    return out
+
+
+def _texture_scaled(mi, path: str, scale, material: MaterialIR) -> dict:
+    """An sRGB colour texture times a constant colour, in linear floats.
+
+    Mitsuba has no 'multiply' texture for constants, so the factor is baked into the pixels once
+    per arrangement (cheap next to the render), which keeps the shading exactly factor * texture.
     """
-    bmp = _read_bitmap(mi, str(material.texture))
+    bmp = _read_bitmap(mi, str(path))
     arr = np.asarray(bmp, dtype=np.float32)
     if arr.ndim == 2:
         arr = arr[..., None]
@@ -39,8 +53,24 @@ def _texture_base(mi, material: MaterialIR):
     if bmp.component_format() in (mi.Struct.Type.UInt8, mi.Struct.Type.UInt16):
         arr = arr / (255.0 if bmp.component_format() == mi.Struct.Type.UInt8 else 65535.0)
         arr = srgb_to_linear(arr)  # 8/16-bit colour images are sRGB-encoded by convention
-    arr = np.ascontiguousarray(arr * np.asarray(material.base_color, dtype=np.float32))
-    return {"type": "bitmap", "bitmap": mi.Bitmap(arr), "raw": True}
+    arr = np.ascontiguousarray(arr * np.asarray(scale, dtype=np.float32))
+    return {"type": "bitmap", "bitmap": mi.Bitmap(arr), "raw": True, **_sampling(mi, material)}
+
+
+def _texture_base(mi, material: MaterialIR) -> dict:
+    """Base-colour texture premultiplied by base_color."""
+    return _texture_scaled(mi, material.texture, material.base_color, material)
+
+
+def _grey_map(mi, path: str, material: MaterialIR, nearest: bool = False) -> dict:
+    """A linear map read as is (roughness, metallic, coverage, normals)."""
+    return {"type": "bitmap", "filename": str(path), "raw": True, **_sampling(mi, material, nearest)}
+
+
+def emitter_dict(mi, material: MaterialIR) -> dict:
+    if material.emission_texture:
+        return {"type": "area", "radiance": _texture_scaled(mi, material.emission_texture, material.emission, material)}
+    return {"type": "area", "radiance": {"type": "rgb", "value": list(material.emission)}}
 
 
 def _read_bitmap(mi, path: str):
@@ -85,25 +115,37 @@ def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool) -> dict:
         base = {"type": "mesh_attribute", "name": VERTEX_COLOR}
     else:
         base = {"type": "rgb", "value": [float(c) for c in material.base_color]}
-    if not uses_principled(material):
+    if not uses_principled(material) and not (material.roughness_texture or material.metallic_texture):
         # Mitsuba's principled diffuse is Burley's (retro-reflection, not energy-conserving: a
         # 0.5 albedo renders 0.49-0.52 by roughness); Blender 4+'s Principled diffuse is
         # Lambertian, and so is this.
-        return {"type": "twosided", "material": {"type": "diffuse", "reflectance": base}}
+        return _surface(mi, material, {"type": "diffuse", "reflectance": base})
     bsdf = {
         "type": "principled",
         "base_color": base,
-        "roughness": float(material.roughness),
-        "metallic": float(material.metallic),
+        "roughness": _grey_map(mi, material.roughness_texture, material) if material.roughness_texture else float(material.roughness),
+        "metallic": _grey_map(mi, material.metallic_texture, material) if material.metallic_texture else float(material.metallic),
         "specular": float(material.specular),
     }
     if material.transmission > 0:
         # twosided forbids transmission; a transmissive surface must be closed and outward-facing.
         bsdf["spec_trans"] = float(material.transmission)
         return bsdf
+    return _surface(mi, material, bsdf)
+
+
+def _surface(mi, material: MaterialIR, bsdf: dict) -> dict:
+    """Normal map, both sides, coverage: the wrappers around a reflecting BSDF."""
+    if material.normal_texture:
+        bsdf = {"type": "normalmap", "normalmap": _grey_map(mi, material.normal_texture, material), "bsdf": bsdf}
     # Mitsuba BSDFs are black from behind; scanned meshes and thin scene geometry have
     # inconsistent winding, and Cycles shades both sides.
-    return {"type": "twosided", "material": bsdf}
+    bsdf = {"type": "twosided", "material": bsdf}
+    if material.transparent:
+        opacity = (_grey_map(mi, material.opacity_texture, material, nearest=material.alpha_mode == "mask")
+                   if material.opacity_texture else float(material.opacity))
+        bsdf = {"type": "mask", "opacity": opacity, "material": bsdf}
+    return bsdf
 
 
 def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True):
@@ -115,13 +157,13 @@ def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True):
         n = data.normals.astype(np.float64) @ np.linalg.inv(R)  # (R^-T n) as rows
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
     m = mitsuba_material(inst.material, calibrate)
-    if m.texture is not None and data.uv is None:
+    if m.textures and data.uv is None:
         raise ValueError(f"mitsuba: material of {inst.name!r} has a texture but its mesh has no UVs")
     vertex_colored = m.use_vertex_colors and data.colors is not None
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf_dict(mi, m, vertex_colored))
     if any(c > 0 for c in m.emission):
-        props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "rgb", "value": list(m.emission)}})
+        props["emitter"] = mi.load_dict(emitter_dict(mi, m))
     mesh = mi.Mesh(
         inst.name,
         vertex_count=len(v),

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .part import MeshFileError, Part
+from .part import MAX_TRIANGLES, MeshFileError, Part
 from . import gltf, obj
 
 MULTI_MATERIAL_SUFFIXES = (".glb", ".gltf", ".obj")
 
-__all__ = ["MULTI_MATERIAL_SUFFIXES", "MeshFileError", "Part", "read_parts", "source_files"]
+__all__ = ["MAX_TRIANGLES", "MULTI_MATERIAL_SUFFIXES", "MeshFileError", "Part", "read_parts", "source_files"]
 
 
 def read_parts(path: Path, texture_cache: Path) -> list[Part]:
@@ -27,7 +27,7 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
     if path.suffix.lower() in (".glb", ".gltf"):
         return gltf.read_parts(path, texture_cache)
     if path.suffix.lower() == ".obj":
-        return obj.read_parts(path)
+        return obj.read_parts(path, texture_cache)
     raise MeshFileError(f"{path}: not a glTF or OBJ file")
 
 

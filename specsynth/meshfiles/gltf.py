@@ -2,17 +2,19 @@
 
 The file's node hierarchy, transforms and instancing are honoured (trimesh flattens the scene
 graph); +Y up is turned into our +Z up. Materials follow the glTF metallic-roughness model:
-base colour = ``baseColorFactor`` (linear) x ``baseColorTexture`` (sRGB), metallic and roughness
-factors (glTF's default 1.0 when absent), emission = ``emissiveFactor`` x
-``KHR_materials_emissive_strength`` as radiance (Blender's importer reads it the same way).
-Embedded textures are written once as PNG into the texture cache, named by their content hash.
+base colour = ``baseColorFactor`` (linear) x ``baseColorTexture`` (sRGB); roughness and metallic =
+factors (glTF's default 1.0 when absent) x the packed map's G and B channels; a tangent-space
+normal map with its scale; emission = ``emissiveFactor`` x ``emissiveTexture`` x
+``KHR_materials_emissive_strength`` as radiance (Blender's importer reads it the same way); alpha
+(opaque, mask with ``alphaCutoff``, blend) from the base colour's alpha; ``KHR_texture_transform``
+and the sampler's wrap mode of the base-colour texture; ``doubleSided``. Textures are written once
+as PNG into the texture cache, named by their content hash (see :mod:`.bake`).
 """
 
 from __future__ import annotations
 
-import hashlib
-import io
 import json
+import math
 import struct
 import warnings
 from pathlib import Path
@@ -20,14 +22,13 @@ from urllib.parse import unquote
 
 import numpy as np
 
-from ..ir import MaterialIR
-from ..meshio import MeshData, atomic_write_bytes
+from ..ir import IDENTITY_UV, MaterialIR
+from ..meshio import MeshData
+from . import bake
 from .part import MAX_TRIANGLES, Y_UP_TO_Z_UP, MeshFileError, Part, unique_names
 
 # Extensions a file may *require* that this reader renders correctly (or that change nothing here).
-SUPPORTED_REQUIRED = {"KHR_materials_emissive_strength", "KHR_mesh_quantization"}
-# Material inputs read by the file but not yet rendered; the parts still load with their factors.
-_NOT_YET = ("metallicRoughnessTexture", "normalTexture", "emissiveTexture", "occlusionTexture")
+SUPPORTED_REQUIRED = {"KHR_materials_emissive_strength", "KHR_mesh_quantization", "KHR_texture_transform"}
 
 
 def gltf_json(path: Path) -> dict:
@@ -93,7 +94,6 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as e:  # trimesh raises many types for broken files
         raise MeshFileError(f"{path}: cannot read glTF ({type(e).__name__})") from None
-    strengths = _emissive_strengths(doc)
     by_material: dict[str, list[MeshData]] = {}
     materials: dict[str, MaterialIR] = {}
     triangles = 0
@@ -108,7 +108,7 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         mat = getattr(geom.visual, "material", None)
         name = str(getattr(mat, "name", None) or "default")
         if name not in materials:
-            materials[name] = _material(path, name, mat, strengths.get(name, 1.0), texture_cache)
+            materials[name] = _material(path, name, mat, material_json(doc, name), doc, texture_cache)
         by_material.setdefault(name, []).append(_mesh(geom, transform, materials[name]))
     if not by_material:
         raise MeshFileError(f"{path}: no triangles")
@@ -117,15 +117,6 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         Part(name=unique, mesh=_concatenate(by_material[n]), material=materials[n], material_name=n)
         for n, unique in zip(names, unique_names(names))
     ]
-
-
-def _emissive_strengths(doc: dict) -> dict[str, float]:
-    out = {}
-    for m in doc.get("materials", []):
-        ext = m.get("extensions", {}).get("KHR_materials_emissive_strength")
-        if ext and "name" in m:
-            out[str(m["name"])] = float(ext.get("emissiveStrength", 1.0))
-    return out
 
 
 def _mesh(geom, transform: np.ndarray, material: MaterialIR) -> MeshData:
@@ -143,7 +134,7 @@ def _mesh(geom, transform: np.ndarray, material: MaterialIR) -> MeshData:
         colors = np.asarray(vis.vertex_colors, np.uint8)
     n = np.asarray(geom.vertex_normals, np.float64) @ np.linalg.inv(R)  # inv(R).T @ n, row-wise
     normals = (n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)).astype(np.float32)
-    if material.texture is None:
+    if not material.textures:
         uv = None
     return MeshData(vertices=v.astype(np.float32), faces=faces, normals=normals, uv=uv, colors=colors)
 
@@ -164,37 +155,83 @@ def _concatenate(meshes: list[MeshData]) -> MeshData:
     )
 
 
-def _material(path: Path, name: str, mat, strength: float, texture_cache: Path) -> MaterialIR:
+_WRAP = {10497: "repeat", 33071: "clamp", 33648: "mirror"}
+_FLIP_V = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 1.0], [0.0, 0.0, 1.0]])  # glTF's v-down <-> our v-up
+
+
+def uv_transform(info: dict | None) -> tuple[float, ...]:
+    """``KHR_texture_transform`` of a texture info, as our v-up affine map (a, b, c, d, e, f)."""
+    ext = (info or {}).get("extensions", {}).get("KHR_texture_transform")
+    if not ext:
+        return IDENTITY_UV
+    ox, oy = ext.get("offset", (0.0, 0.0))
+    r = float(ext.get("rotation", 0.0))
+    sx, sy = ext.get("scale", (1.0, 1.0))
+    T = np.array([[1, 0, ox], [0, 1, oy], [0, 0, 1]], np.float64)
+    R = np.array([[math.cos(r), math.sin(r), 0], [-math.sin(r), math.cos(r), 0], [0, 0, 1]])
+    S = np.diag([sx, sy, 1.0])
+    M = _FLIP_V @ (T @ R @ S) @ _FLIP_V
+    return tuple(float(x) for x in M[:2].ravel())
+
+
+def _wrap(doc: dict, info: dict | None) -> str:
+    tex = doc.get("textures", [])
+    i = (info or {}).get("index")
+    if i is None or not 0 <= i < len(tex) or "sampler" not in tex[i]:
+        return "repeat"
+    sampler = doc.get("samplers", [])[tex[i]["sampler"]] if tex[i]["sampler"] < len(doc.get("samplers", [])) else {}
+    modes = {_WRAP.get(sampler.get("wrapS", 10497), "repeat"), _WRAP.get(sampler.get("wrapT", 10497), "repeat")}
+    return modes.pop() if len(modes) == 1 else "repeat"  # per-axis modes: one is all backends take
+
+
+def material_json(doc: dict, name: str) -> dict:
+    for m in doc.get("materials", []):
+        if m.get("name") == name:
+            return m
+    return {}
+
+
+def _material(path: Path, name: str, mat, js: dict, doc: dict, texture_cache: Path) -> MaterialIR:
     if mat is None:
         return MaterialIR(use_vertex_colors=True)
     if not hasattr(mat, "baseColorFactor"):  # a SimpleMaterial from an odd file: diffuse only
         mat = mat.to_pbr()
+    what = f"{path}: material {name!r}"
+    pbr = js.get("pbrMetallicRoughness", {})
     factor = mat.baseColorFactor
     rgba = np.ones(4) if factor is None else np.asarray(factor, np.float64) / (255.0 if np.asarray(factor).dtype == np.uint8 else 1.0)
-    texture = None
-    if mat.baseColorTexture is not None:
-        texture = str(_store_texture(mat.baseColorTexture, texture_cache))
-    unused = [k for k in _NOT_YET if getattr(mat, k, None) is not None]
-    if unused:
-        warnings.warn(f"{path}: material {name!r}: {', '.join(unused)} not rendered yet; using the factors",
-                      stacklevel=4)
+    rough = 1.0 if mat.roughnessFactor is None else float(np.clip(mat.roughnessFactor, 0, 1))
+    metal = 1.0 if mat.metallicFactor is None else float(np.clip(mat.metallicFactor, 0, 1))
+    strength = float(js.get("extensions", {}).get("KHR_materials_emissive_strength", {}).get("emissiveStrength", 1.0))
     emission = np.zeros(3) if mat.emissiveFactor is None else np.asarray(mat.emissiveFactor, np.float64) * strength
-    return MaterialIR(
-        base_color=tuple(float(c) for c in np.clip(rgba[:3], 0, 1)),
-        use_vertex_colors=True,
-        texture=texture,
-        roughness=float(1.0 if mat.roughnessFactor is None else np.clip(mat.roughnessFactor, 0, 1)),
-        metallic=float(1.0 if mat.metallicFactor is None else np.clip(mat.metallicFactor, 0, 1)),
-        emission=tuple(float(c) for c in np.maximum(emission, 0)),
+    mode = str(js.get("alphaMode", "OPAQUE")).lower()
+    fields: dict = dict(
+        base_color=tuple(float(c) for c in np.clip(rgba[:3], 0, 1)), use_vertex_colors=True,
+        roughness=rough, metallic=metal, emission=tuple(float(c) for c in np.maximum(emission, 0)),
+        alpha_mode=mode if mode in ("opaque", "mask", "blend") else "opaque",
+        double_sided=bool(js.get("doubleSided", False)),
+        uv_transform=uv_transform(pbr.get("baseColorTexture") or js.get("normalTexture")),
+        wrap=_wrap(doc, pbr.get("baseColorTexture")),
     )
-
-
-def _store_texture(image, texture_cache: Path) -> Path:
-    """A decoded texture as PNG under its content hash; written once, never overwritten."""
-    buf = io.BytesIO()
-    image.convert("RGBA" if image.mode in ("RGBA", "LA", "P") else "RGB").save(buf, format="PNG")
-    data = buf.getvalue()
-    dest = Path(texture_cache) / f"{hashlib.sha256(data).hexdigest()}.png"
-    if not (dest.is_file() and dest.stat().st_size == len(data)):
-        atomic_write_bytes(dest, data)
-    return dest
+    store = lambda image: str(bake.store_png(image, texture_cache))  # noqa: E731
+    if mat.baseColorTexture is not None:
+        fields["texture"] = store(mat.baseColorTexture.convert("RGB"))
+    if mat.metallicRoughnessTexture is not None:
+        fields["roughness_texture"] = store(bake.channel_map(mat.metallicRoughnessTexture, 1, rough, what))
+        fields["metallic_texture"] = store(bake.channel_map(mat.metallicRoughnessTexture, 2, metal, what))
+    if mat.normalTexture is not None:
+        scale = float(js.get("normalTexture", {}).get("scale", 1.0))
+        fields["normal_texture"] = store(bake.scaled_normal_map(mat.normalTexture, scale, what))
+    if mat.emissiveTexture is not None and emission.any():
+        fields["emission_texture"] = store(mat.emissiveTexture.convert("RGB"))
+    if fields["alpha_mode"] != "opaque":
+        cutoff = float(js.get("alphaCutoff", 0.5))
+        if mat.baseColorTexture is not None and bake.has_alpha(mat.baseColorTexture):
+            fields["opacity_texture"] = store(bake.coverage_map(mat.baseColorTexture, rgba[3], fields["alpha_mode"], cutoff, what))
+        else:
+            fields["opacity"] = float(rgba[3] >= cutoff) if fields["alpha_mode"] == "mask" else float(rgba[3])
+        if fields["opacity"] >= 1.0 and "opacity_texture" not in fields:
+            fields["alpha_mode"] = "opaque"
+    if mat.occlusionTexture is not None:
+        warnings.warn(f"{what}: occlusionTexture is ignored (path tracers compute occlusion)", stacklevel=4)
+    return MaterialIR(**fields)

@@ -5,9 +5,11 @@ importer maps it and every texture keeps its own file:
 
 - ``Kd`` base colour (linear, as Blender reads it), ``map_Kd`` base-colour texture (sRGB);
 - ``Pr`` roughness, else from ``Ns``: ``1 - sqrt(Ns / 1000)`` (Blender's rule);
-- ``Pm`` metallic; ``Ke`` emission (radiance, strength 1);
-- ``map_Pm``, ``map_Bump``/``bump``/``norm``, ``map_Ke``, ``d``/``map_d``: read, not rendered yet
-  (a warning names them).
+- ``Pm``/``map_Pm`` metallic, ``map_Pr`` roughness (grey maps, first channel);
+- ``map_Bump``/``bump``/``norm``: a tangent-space normal map, ``-bm`` its scale (as Blender's
+  importer reads them);
+- ``Ke`` emission (radiance, strength 1), ``map_Ke`` its texture;
+- ``d`` (or ``1 - Tr``) and ``map_d``: coverage, blended.
 
 A texture named by the MTL but missing is a warning, and the part falls back to ``Kd``: scenes
 exported from other machines often lose a texture or two, and a grey table beats no dataset.
@@ -18,16 +20,18 @@ from __future__ import annotations
 import math
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..ir import MaterialIR
 from ..meshio import MeshData
+from . import bake
 from .part import MAX_TRIANGLES, MeshFileError, Part, unique_names
 
-_NOT_YET = ("map_Pm", "map_Bump", "bump", "norm", "map_Ke", "map_d")
+_MAPS = {"map_Kd": "map_kd", "map_Pr": "map_pr", "map_Pm": "map_pm", "map_Bump": "map_bump", "bump": "map_bump",
+         "norm": "map_bump", "map_Ke": "map_ke", "map_d": "map_d"}
 
 
 @dataclass
@@ -35,12 +39,17 @@ class MtlMaterial:
     name: str
     kd: tuple[float, float, float] = (0.8, 0.8, 0.8)
     map_kd: str | None = None
+    map_pr: str | None = None
+    map_pm: str | None = None
+    map_bump: str | None = None
+    bump_scale: float = 1.0
+    map_ke: str | None = None
+    map_d: str | None = None
     ns: float | None = None
     pr: float | None = None
     pm: float = 0.0
     ke: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dissolve: float = 1.0
-    unrendered: list[str] = field(default_factory=list)
 
 
 def _text(path: Path) -> str:
@@ -81,8 +90,10 @@ def parse_mtl(path: Path) -> dict[str, MtlMaterial]:
             continue
         elif key == "Kd":
             cur.kd = _floats(args, 3, where)
-        elif key == "map_Kd":
-            cur.map_kd = _map_file(args)
+        elif key in _MAPS:
+            setattr(cur, _MAPS[key], _map_file(args))
+            if _MAPS[key] == "map_bump" and "-bm" in args[:-1]:
+                cur.bump_scale = _floats(args[args.index("-bm") + 1 :], 1, where)[0]
         elif key == "Ns":
             cur.ns = _floats(args, 1, where)[0]
         elif key == "Pr":
@@ -95,8 +106,6 @@ def parse_mtl(path: Path) -> dict[str, MtlMaterial]:
             cur.dissolve = _floats(args, 1, where)[0]
         elif key == "Tr":
             cur.dissolve = 1.0 - _floats(args, 1, where)[0]
-        elif key in _NOT_YET:
-            cur.unrendered.append(key)
     return mats
 
 
@@ -139,36 +148,61 @@ def materials_of(path: Path) -> dict[str, tuple[MtlMaterial, Path]]:
     return out
 
 
-def material_ir(path: Path, mat: MtlMaterial | None, lib: Path | None) -> MaterialIR:
+def _texture(path: Path, mat: MtlMaterial, lib: Path, name: str | None, kind: str, fallback: str = "ignored") -> Path | None:
+    if not name:
+        return None
+    tex = texture_path(lib, name)
+    if tex.is_file():
+        return tex
+    warnings.warn(f"{path}: material {mat.name!r}: {kind} texture {name} is missing; {fallback}", stacklevel=5)
+    return None
+
+
+def material_ir(path: Path, mat: MtlMaterial | None, lib: Path | None, texture_cache: Path) -> MaterialIR:
+    from PIL import Image
+
     if mat is None:
         return MaterialIR(use_vertex_colors=False)
-    texture = None
-    if mat.map_kd:
-        tex = texture_path(lib, mat.map_kd)
-        if tex.is_file():
-            texture = str(tex)
-        else:
-            warnings.warn(f"{path}: material {mat.name!r}: texture {mat.map_kd} is missing; using Kd", stacklevel=4)
-    if mat.unrendered or mat.dissolve < 1.0:
-        what = mat.unrendered + (["d < 1"] if mat.dissolve < 1.0 else [])
-        warnings.warn(f"{path}: material {mat.name!r}: {', '.join(what)} not rendered yet", stacklevel=4)
+    what = f"{path}: material {mat.name!r}"
+    base = _texture(path, mat, lib, mat.map_kd, "base colour", "using Kd")
+
+    def baked(name: str | None, kind: str, make) -> str | None:
+        src = _texture(path, mat, lib, name, kind)
+        if src is None:
+            return None
+        with Image.open(src) as im:
+            return str(bake.store_png(make(im), texture_cache))
+
     if mat.pr is not None:
         roughness = mat.pr
     elif mat.ns is not None:
         roughness = 1.0 - math.sqrt(min(max(mat.ns, 0.0), 1000.0) / 1000.0)
     else:
         roughness = 0.5
+    emission = tuple(float(max(c, 0.0)) for c in mat.ke)
+    opacity_tex = baked(mat.map_d, "coverage", lambda im: bake.channel_map(im, 3 if "A" in im.getbands() else 0, mat.dissolve, what))
     return MaterialIR(
-        base_color=(1.0, 1.0, 1.0) if texture else tuple(float(np.clip(c, 0, 1)) for c in mat.kd),
+        base_color=(1.0, 1.0, 1.0) if base else tuple(float(np.clip(c, 0, 1)) for c in mat.kd),
         use_vertex_colors=False,
-        texture=texture,
+        texture=None if base is None else str(base),
         roughness=float(np.clip(roughness, 0, 1)),
         metallic=float(np.clip(mat.pm, 0, 1)),
-        emission=tuple(float(max(c, 0.0)) for c in mat.ke),
+        emission=emission,
+        roughness_texture=baked(mat.map_pr, "roughness", lambda im: bake.channel_map(im, 0, 1.0, what)),
+        metallic_texture=baked(mat.map_pm, "metallic", lambda im: bake.channel_map(im, 0, 1.0, what)),
+        normal_texture=baked(mat.map_bump, "normal", lambda im: bake.scaled_normal_map(im, mat.bump_scale, what)),
+        emission_texture=_str(_texture(path, mat, lib, mat.map_ke, "emission")) if any(emission) else None,
+        alpha_mode="blend" if (mat.dissolve < 1.0 or opacity_tex) else "opaque",
+        opacity=float(np.clip(mat.dissolve, 0, 1)),
+        opacity_texture=opacity_tex,
     )
 
 
-def read_parts(path: Path) -> list[Part]:
+def _str(p: Path | None) -> str | None:
+    return None if p is None else str(p)
+
+
+def read_parts(path: Path, texture_cache: Path) -> list[Part]:
     import trimesh
 
     mats = materials_of(path)
@@ -197,13 +231,14 @@ def read_parts(path: Path) -> list[Part]:
     parts = []
     for n, unique in zip(names, unique_names(names)):
         mat, lib = mats.get(n, (None, None))
-        ir = material_ir(path, mat, lib)
+        ir = material_ir(path, mat, lib, texture_cache)
         mesh = _concatenate(groups[n])
-        if ir.texture is None:
+        if not ir.textures:
             mesh = MeshData(vertices=mesh.vertices, faces=mesh.faces, normals=mesh.normals)
         elif mesh.uv is None:
-            warnings.warn(f"{path}: material {n!r} has a texture but its faces have no UVs; using Kd", stacklevel=3)
-            ir = material_ir(path, MtlMaterial(**{**mat.__dict__, "map_kd": None}), lib)
+            warnings.warn(f"{path}: material {n!r} has textures but its faces have no UVs; using its colours", stacklevel=3)
+            bare = replace(mat, map_kd=None, map_pr=None, map_pm=None, map_bump=None, map_ke=None, map_d=None)
+            ir = material_ir(path, bare, lib, texture_cache)
         parts.append(Part(name=unique, mesh=mesh, material=ir, material_name=n))
     return parts
 

@@ -213,6 +213,8 @@ def _build_geometry(m: SceneMesh, src: Path | None, what: str) -> MeshData:
 
 def _finish_geometry(m: SceneMesh, mesh: MeshData, what: str) -> MeshData:
     """Unit and scale baked in, UVs multiplied by uv_scale, validated."""
+    if len(mesh.faces) > meshfiles.MAX_TRIANGLES:
+        raise SceneError(f"{what}: {len(mesh.faces):,} triangles, over the {meshfiles.MAX_TRIANGLES:,} limit; decimate it first")
     if _source_kind(m) == "file":
         mesh = procedural.transform_mesh(mesh, np.diag([assets.UNIT_SCALE[m.unit]] * 3 + [1.0]))
     scale = _scale3(m.transform.scale)

@@ -23,7 +23,9 @@ from ..ir import MaterialIR
 from ..meshio import MeshData, atomic_write_bytes
 from .models import SceneMesh
 
-PARTS_VERSION = 1
+PARTS_VERSION = 2  # 2: every PBR map, alpha, UV transform, wrap
+TEXTURE_FIELDS = ("texture", "roughness_texture", "metallic_texture", "normal_texture", "emission_texture",
+                  "opacity_texture")
 TEXTURE_DIR = "textures"  # under <cache>/assets: embedded glTF textures by content hash
 
 
@@ -65,7 +67,8 @@ def convert_parts(
     for i, part in enumerate(parts):
         ply, mesh_key = assets.store_mesh(finish(part.mesh), f"{key}.{i}", cache)
         mat = asdict(part.material)
-        mat["texture"] = _texture_ref(part.material.texture, src, cache)
+        for k in TEXTURE_FIELDS:
+            mat[k] = _texture_ref(mat[k], src, cache)
         rows.append({"name": part.name, "material_name": part.material_name, "ply": ply.name,
                      "mesh_key": mesh_key, "material": mat})
     atomic_write_bytes(sidecar, json.dumps({"v": PARTS_VERSION, "parts": rows}, sort_keys=True).encode())
@@ -74,8 +77,9 @@ def convert_parts(
 
 def _from_meta(p: dict, src: Path, cache: Path) -> tuple[str, str, Path, str, MaterialIR]:
     mat = dict(p["material"])
-    mat["texture"] = _texture_path(mat["texture"], src, cache)
-    for k in ("base_color", "emission"):
+    for k in TEXTURE_FIELDS:
+        mat[k] = _texture_path(mat[k], src, cache)
+    for k in ("base_color", "emission", "uv_transform"):
         mat[k] = tuple(mat[k])
     return p["name"], p["material_name"], cache / "assets" / p["ply"], p["mesh_key"], MaterialIR(**mat)
 
