@@ -118,6 +118,9 @@ class JobGraph:
     stage_digests: dict[str, str]
     asset_hashes: dict[str, str]
     backend: str
+    # Content hash of each spec.scenes entry: an arrangement's key holds only its own scene's, so
+    # editing one scene's texture re-runs exactly the arrangements drawn in that scene.
+    scene_keys: tuple[str, ...] = ()
 
     @property
     def n_arrangements(self) -> int:
@@ -136,7 +139,11 @@ class JobGraph:
 
     def arrange_job(self, arr: int) -> Job:
         jid = arr_id(arr)
-        return Job("arrange", jid, keys.job_key(self.stage_digests["arrange"], jid), self.spec.seed, arr)
+        scene = 0
+        if len(self.scene_keys) > 1:  # ~26 us a job: only when there is a choice
+            scene = seeds.scene_draw(self.spec.seed, jid, [s.weight for s in self.spec.scenes])[0]
+        up = self.scene_keys[scene] if self.scene_keys else None
+        return Job("arrange", jid, keys.job_key(self.stage_digests["arrange"], jid, up), self.spec.seed, arr)
 
     def view_job(self, arr: int, cam: int, arrange_key: str | None = None) -> Job:
         jid = view_id(arr, cam)
@@ -217,7 +224,6 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         inputs = {f"spec:{f}": keys.digest(_field(data, f)) for f in fields}
         stage_inputs[stage] = inputs
     stage_inputs["arrange"].update(asset_hashes)
-    stage_inputs["arrange"].update(scene_hashes)
     stage_inputs["view"]["annotator"] = f"pyrender {_dist_version('pyrender')}"
     backend = backend_fingerprint(spec.backend.name)
     stage_inputs["render"]["backend"] = backend
@@ -225,6 +231,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     if backgrounds != "builtin":
         stage_inputs["render"]["backgrounds"] = _folder_listing_digest(Path(backgrounds), loaded.directory)
     stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
+    stage_inputs["arrange"].update(scene_hashes)  # for diff attribution; keyed per job (arrange_job)
     return JobGraph(
         spec=spec,
         spec_path=loaded.path,
@@ -232,4 +239,5 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         stage_digests=stage_digests,
         asset_hashes={**asset_hashes, **scene_hashes},
         backend=backend,
+        scene_keys=tuple(scene_hashes[f"scene:{ref.ref}"] for ref in spec.scenes),
     )

@@ -24,3 +24,12 @@ def job_rng(root_seed: int, job_id: str) -> np.random.Generator:
 def job_seed(root_seed: int, job_id: str) -> int:
     """A 31-bit integer seed for renderers that take one (Cycles, Mitsuba, pyrender lights)."""
     return int(seed_sequence(root_seed, job_id).generate_state(1, np.uint32)[0] & 0x7FFFFFFF)
+
+
+def scene_draw(root_seed: int, job_id: str, weights) -> tuple[int, np.random.Generator]:
+    """An arrangement's scene (index into the spec's scenes, by weight) and the job's generator
+    after that draw. The compiler calls it to key each arrangement by its own scene only; the
+    arrange job calls it to continue drawing (stage, poses) from the same stream."""
+    rng = job_rng(root_seed, job_id)
+    w = np.asarray(weights, dtype=np.float64)
+    return int(rng.choice(len(w), p=w / w.sum())), rng

@@ -156,9 +156,8 @@ class Worker:
         if self.store.has("arrange", job.key):
             return {"id": job.id, "cached": True}
         spec = self.spec
-        rng = seeds.job_rng(spec.seed, job.id)
-        weights = np.array([s.weight for s in spec.scenes], dtype=np.float64)
-        ref = spec.scenes[int(rng.choice(len(spec.scenes), p=weights / weights.sum()))]
+        index, rng = seeds.scene_draw(spec.seed, job.id, [s.weight for s in spec.scenes])
+        ref = spec.scenes[index]
         scene = self.scene(ref)
         names = ref.stages or sorted(scene.stages)
         missing = [n for n in names if n not in scene.stages]

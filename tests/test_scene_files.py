@@ -371,3 +371,43 @@ def test_a_gigantic_mesh_is_refused_before_rendering(tmp_path, monkeypatch):
     (tmp_path / "big.yaml").write_text("version: 1\nname: big\nmeshes:\n  - {name: ball, source: ball.stl}\n")
     with pytest.raises(SceneError, match=r"big.yaml: meshes.ball: 320 triangles, over the 10 limit"):
         _load(tmp_path, tmp_path / "cache", "big.yaml")
+
+
+# --------------------------------------------------------------------------- content keys, end to end
+
+
+def test_editing_one_texture_reruns_exactly_the_arrangements_in_that_scene(byo, tmp_path):
+    """Two scenes in one spec: a new wood texture re-runs the arrangements drawn in the user scene
+    (and their views and renders), and none drawn in the built-in room."""
+    from PIL import Image
+
+    from specsynth.build import build, plan
+    from specsynth.compiler import compile_spec
+    from specsynth.seeds import scene_draw
+    from specsynth.yamlio import load_spec
+
+    spec = byo / "two.yaml"
+    spec.write_text((byo / "spec.yaml").read_text()
+                    .replace("scenes: [{file: scene.yaml}]", "scenes: [{file: scene.yaml}, {name: room}]")
+                    .replace("arrangements: {count: 2}", "arrangements: {count: 6}")
+                    .replace("backend: {name: cycles, denoise: true}", "backend: {name: photo}"))
+    graph = compile_spec(load_spec(spec))
+    in_byo = [a for a in range(6) if scene_draw(graph.spec.seed, f"arr={a:06d}", [1, 1])[0] == 0]
+    assert 0 < len(in_byo) < 6
+    out = tmp_path / "out"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        build(graph, out, jobs=1)
+    done = json.loads((out / ".specsynth" / "manifest.json").read_text())["jobs"]
+    import pyarrow.parquet as pq
+
+    scenes = dict(zip(*pq.read_table(out / "parquet" / "images.parquet", columns=["arr", "scene"]).to_pydict().values()))
+    assert {a for a, s in scenes.items() if s == "file:scene.yaml"} == {a for a in in_byo if a in scenes}
+
+    Image.new("RGB", (16, 16), (20, 160, 20)).save(byo / "wood.png")
+    again = compile_spec(load_spec(spec))
+    changed = [a for a in range(6) if again.arrange_job(a).key != graph.arrange_job(a).key]
+    assert changed == in_byo
+    p = plan(again, out)["stages"]
+    assert p["arrange"]["to_run"] == len(in_byo) and p["arrange"]["cached"] == 6 - len(in_byo)
+    assert p["render"]["cached"] == sum(1 for k in done["render"] if int(k[4:10]) not in in_byo) > 0
