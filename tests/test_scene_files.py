@@ -36,8 +36,8 @@ def byo(tmp_path) -> Path:
     return folder
 
 
-def _load(folder: Path, cache: Path, scene: str = "scene.yaml"):
-    return load_scene(SceneRef(file=str(folder / scene)), folder, cache=cache)
+def _load(folder: Path, cache: Path, scene: str = "scene.yaml", clearance: float | None = None):
+    return load_scene(SceneRef(file=str(folder / scene)), folder, cache=cache, clearance=clearance)
 
 
 # --------------------------------------------------------------------------- readers
@@ -45,7 +45,7 @@ def _load(folder: Path, cache: Path, scene: str = "scene.yaml"):
 
 def test_gltf_parts_are_z_up_with_node_transforms_and_instancing(byo, tmp_path):
     parts = {p.name: p for p in meshfiles.read_parts(byo / "room.glb", tmp_path / "tex")}
-    assert set(parts) == {"floor_checker", "plaster"}
+    assert set(parts) == {"floor_checker", "plaster", "board_white"}
     floor = parts["floor_checker"].mesh
     assert np.allclose(floor.vertices[:, 2], 0) and np.ptp(floor.vertices[:, 0]) == pytest.approx(3.0)
     assert np.allclose(floor.normals, [0, 0, 1], atol=1e-6)  # +Y up in the file -> +Z up here
@@ -121,7 +121,7 @@ def test_required_draco_is_refused_by_name(byo, tmp_path):
 def test_scene_keeps_every_material_and_overrides_by_name(byo, tmp_path):
     desc = _load(byo, tmp_path / "cache")
     by_name = {m.name: m for m in desc.meshes}
-    assert set(by_name) == {"room/floor_checker", "room/plaster", "table/wood_top", "table/leg_metal"}
+    assert set(by_name) == {"room/floor_checker", "room/plaster", "room/board_white", "table/wood_top", "table/leg_metal"}
     assert by_name["table/wood_top"].material.texture == str(byo / "wood.png")
     assert read_mesh(by_name["table/wood_top"].mesh_path).vertices[:, 2].max() == pytest.approx(0.72, abs=1e-5)
     assert np.allclose(by_name["table/wood_top"].matrix[:3, 3], [0.3, 0.2, 0])
@@ -193,6 +193,50 @@ def test_both_textures_show_in_a_real_render(byo, tmp_path, backend):
     blue_tiles = (b > r + 30) & (b > g + 10)  # the checker's dark tiles (70, 95, 140)
     wood = (r > b + 60) & (r > g + 20)  # the table top (150-210, 90-130, 45-65)
     assert blue_tiles.mean() > 0.02 and wood.mean() > 0.02, (blue_tiles.mean(), wood.mean())
+    if backend == "cycles":
+        _masks_agree_with_cycles_rerender(byo, out)
+
+
+def _masks_agree_with_cycles_rerender(byo: Path, out: Path) -> None:
+    """The labels against an independent re-render: Cycles' own instance ids of each view."""
+    from specsynth.compiler import compile_spec
+    from specsynth.records import ArrangementRecord, ViewRecord
+    from specsynth.tasks import BuildContext, Worker
+    from specsynth.yamlio import load_spec
+    from specsynth.ir import CameraIR, as_tuple
+    from backends.cycles import CyclesBackend
+    from PIL import Image
+
+    graph = compile_spec(load_spec(byo / "spec.yaml", ["arrangements.count=1", "cameras.per_arrangement=2"]))
+    worker = Worker(BuildContext(spec=graph.spec, spec_dir=byo, out=out))
+    jobs = json.loads((out / ".specsynth" / "manifest.json").read_text())["jobs"]
+    cyc = CyclesBackend({"name": "cycles"}, threads=2)
+    compared = 0
+    try:
+        for arr_key in jobs["arrange"].values():
+            arr = ArrangementRecord.from_json(worker.store.load("arrange", arr_key))
+            scene = worker.render_scene(arr)
+            cyc.load(scene)
+            for vid, vkey in jobs["view"].items():
+                view = ViewRecord.from_json(worker.store.load("view", vkey))
+                if view.arr != arr.arr or not view.accepted:
+                    continue
+                K = graph.spec.intrinsics
+                cam = CameraIR(K=as_tuple(np.array([[K.fx, 0, K.cx], [0, K.fy, K.cy], [0, 0, 1]])), width=K.width,
+                               height=K.height, R_w2c=as_tuple(np.asarray(view.R_w2c)), t_w2c=as_tuple(np.asarray(view.t_w2c)))
+                ids = cyc.render_index_masks(cam)
+                info = json.loads((out / "bop/train_pbr/000000/scene_gt_info.json").read_text())[str(view.index)]
+                for gt_id, g in enumerate(info):
+                    if g["px_count_visib"] < 100:
+                        continue
+                    ours = np.asarray(Image.open(out / f"bop/train_pbr/000000/mask_visib/{view.index:06d}_{gt_id:06d}.png")) > 0
+                    theirs = ids == scene.objects()[gt_id].inst
+                    iou = (ours & theirs).sum() / (ours | theirs).sum()
+                    assert iou > 0.95, (view.index, gt_id, iou)
+                    compared += 1
+    finally:
+        cyc.close()
+    assert compared >= 2
 
 
 # --------------------------------------------------------------------------- automatic stages
@@ -262,9 +306,13 @@ def test_largest_rectangle_matches_brute_force(seed):
 def test_scene_without_stages_finds_them_and_show_draws_them(byo, tmp_path, capsys):
     from specsynth.cli import main
 
-    desc = _load(byo, tmp_path / "cache")
+    desc = _load(byo, tmp_path / "cache", clearance=0.7)  # more than the 0.68 m under the table top
     heights = sorted({round(s.height, 3) for s in desc.stages.values()})
-    assert heights == [0.0, 0.72]  # the floor and the table top; never under the table
+    assert heights == [0.0, 0.13, 0.72]  # the floor, the low board's top and the table top
+    under_board = np.array([[x, y] for x in (-1.3, -0.9, -0.5) for y in (-1.05, -0.9, -0.75)])
+    for st in desc.stages.values():  # never on the floor under the board, nor under the table
+        if st.height < 0.01:
+            assert not st.contains(under_board).any() and not st.contains(np.array([[0.3, 0.2]]))[0], st
     rc = main(["scenes", "show", str(byo / "scene.yaml"), "--out", str(tmp_path / "top.png"), "--clearance", "0.7"])
     assert rc == 0 and "auto_0720mm_1" in capsys.readouterr().out
     from PIL import Image
@@ -322,7 +370,7 @@ def test_gltf_scene_imports_punctual_lights_with_photometric_units(byo, tmp_path
     assert spot.matrix[:3, 2] == pytest.approx([0, 0, 1], abs=1e-6)  # local +Z up: it emits along -Z, down
     assert sun.kind == "sun" and sun.power == pytest.approx(3000 / 683)
     assert desc.world.kind == "color"  # lights given: no default HDRI
-    assert {s.height for s in desc.stages.values()} == {0.0}
+    assert {round(s.height, 3) for s in desc.stages.values()} == {0.0, 0.13}  # floor and the low board
 
 
 def test_gltf_scene_without_lights_gets_the_default_hdri(byo, tmp_path):

@@ -4,8 +4,9 @@
     specsynth build /tmp/byo/spec.yaml --out /tmp/byo/out    # Cycles; --set 'backend={name: mitsuba}'
 
 Files (all generated here, nothing downloaded):
-- ``room.glb``: glTF 2.0 (+Y up, metres) with a floor (checker base-colour texture, rough) and a
-  back wall (plain plaster colour), two nodes sharing one wall mesh (instancing);
+- ``room.glb``: glTF 2.0 (+Y up, metres) with a floor (checker base-colour texture, rough), two
+  walls (plain plaster colour: two nodes sharing one wall mesh, instancing) and a low shelf
+  board 10 cm above the floor;
 - ``table.obj`` + ``table.mtl`` + ``wood.png``: a table whose top has ``map_Kd`` wood and whose
   legs are a dark metal (``Kd``, ``Pm``, ``Ns``);
 - ``scene.yaml``: both meshes, a ceiling light, a grey world, and no stages: specsynth finds them;
@@ -24,6 +25,7 @@ from PIL import Image
 FLOOR = 3.0  # metres, square
 TABLE_TOP = 0.72  # metres above the floor
 TABLE_SIZE = (1.2, 0.8)
+BOARD_AT = (-0.9, 0.115, 0.9)  # glTF (x, y up, z): in our frame x = -0.9, y = -0.9, top at z = 0.13
 
 
 def checker(n: int = 8, size: int = 256) -> Image.Image:
@@ -55,8 +57,13 @@ def room_glb() -> bytes:
     wall.unmerge_vertices()  # flat shading: a vertex per face corner, as DCC exporters write boxes
     wall.visual = trimesh.visual.TextureVisuals(
         material=PBRMaterial(name="plaster", baseColorFactor=[0.72, 0.66, 0.55, 1.0], roughnessFactor=0.9, metallicFactor=0.0))
+    board = trimesh.creation.box((0.9, 0.03, 0.4))  # a low shelf board: its top is a stage, the floor under it is not
+    board.unmerge_vertices()
+    board.visual = trimesh.visual.TextureVisuals(
+        material=PBRMaterial(name="board_white", baseColorFactor=[0.85, 0.85, 0.82, 1.0], roughnessFactor=0.4, metallicFactor=0.0))
     scene = trimesh.Scene()
     scene.add_geometry(floor, node_name="floor")
+    scene.add_geometry(board, node_name="low_board", transform=trimesh.transformations.translation_matrix(BOARD_AT))
     scene.add_geometry(wall, node_name="wall_back", transform=trimesh.transformations.translation_matrix((0, 0.6, -FLOOR / 2)))
     turn = trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0))
     scene.add_geometry(wall, node_name="wall_side", geom_name="geometry_1",
