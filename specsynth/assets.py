@@ -21,7 +21,6 @@ import math
 import os
 import re
 import warnings
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -29,7 +28,10 @@ import numpy as np
 
 from . import spec as spec_mod
 from .colour import srgb_to_linear
+from .conventions import rpy_matrix
 from .ir import MaterialIR
+from .meshfiles import ply, single, urdf as urdf_reader
+from .meshfiles.part import MeshFileError
 from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
 
 # Bump when the conversion changes its output for the same input: every cached mesh and every
@@ -214,69 +216,6 @@ def _builtin_def(name: str) -> _Builtin:
     )
 
 
-@dataclass(frozen=True)
-class _Visual:
-    mesh: Path | None  # None for a primitive
-    primitive: tuple | None  # ('box', (sx, sy, sz)) | ('cylinder', (r, h)) | ('sphere', (r,))
-    scale: tuple[float, float, float]
-    matrix: np.ndarray  # 4x4 link-from-visual
-    rgba: tuple[float, float, float, float] | None
-
-
-def _floats(s: str | None, n: int, default: float) -> tuple[float, ...]:
-    if not s:
-        return (default,) * n
-    v = tuple(float(x) for x in s.split())
-    return v * n if len(v) == 1 else v
-
-
-def parse_urdf(path: Path) -> list[_Visual]:
-    """Visual geometry of a single-link URDF (what pybullet_data objects and tables are)."""
-    from .scenes.procedural import rpy_matrix
-
-    try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError) as e:
-        raise AssetError(f"{path}: cannot parse URDF: {e}") from e
-    named = {}
-    for m in root.findall("material"):
-        c = m.find("color")
-        if c is not None:
-            named[m.get("name")] = _floats(c.get("rgba"), 4, 1.0)
-    links = root.findall("link")
-    if len(links) != 1:
-        raise AssetError(f"{path}: only single-link URDFs are supported, this one has {len(links)} links")
-    visuals = []
-    for vis in links[0].findall("visual"):
-        T = np.eye(4)
-        o = vis.find("origin")
-        if o is not None:
-            T[:3, :3] = rpy_matrix(*_floats(o.get("rpy"), 3, 0.0))
-            T[:3, 3] = _floats(o.get("xyz"), 3, 0.0)
-        rgba = None
-        mat = vis.find("material")
-        if mat is not None:
-            c = mat.find("color")
-            rgba = _floats(c.get("rgba"), 4, 1.0) if c is not None else named.get(mat.get("name"))
-        g = vis.find("geometry")
-        if g is None or len(g) == 0:
-            continue
-        geo = g[0]
-        if geo.tag == "mesh":
-            visuals.append(_Visual(path.parent / geo.get("filename", ""), None,
-                                   _floats(geo.get("scale"), 3, 1.0), T, rgba))
-        elif geo.tag == "box":
-            visuals.append(_Visual(None, ("box", _floats(geo.get("size"), 3, 1.0)), (1.0, 1.0, 1.0), T, rgba))
-        elif geo.tag == "cylinder":
-            visuals.append(_Visual(None, ("cylinder", (float(geo.get("radius")), float(geo.get("length")))),
-                                   (1.0, 1.0, 1.0), T, rgba))
-        elif geo.tag == "sphere":
-            visuals.append(_Visual(None, ("sphere", (float(geo.get("radius")),)), (1.0, 1.0, 1.0), T, rgba))
-    if not visuals:
-        raise AssetError(f"{path}: URDF has no visual geometry")
-    return visuals
-
-
 def _mtl_texture(obj_path: Path) -> tuple[Path | None, tuple[float, float, float] | None]:
     """(map_Kd texture, Kd colour) of an OBJ's first material library, from the files' text."""
     try:
@@ -300,172 +239,11 @@ def _mtl_texture(obj_path: Path) -> tuple[Path | None, tuple[float, float, float
 # --------------------------------------------------------------------------- mesh readers
 
 
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
-
-
-def read_ply(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, list[str]]:
-    """Any PLY (ASCII or binary) -> (vertex properties, triangles, header comments).
-
-    Our own reader because trimesh's tries to load the texture a BOP header names and logs a
-    traceback when it is missing (the normal case for BOP downloads without textures).
-    """
-    data = path.read_bytes()
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise AssetError(f"{path}: not a PLY file (no 'ply' magic or 'end_header')")
-    body_start = data.index(b"\n", end) + 1
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    fmt, comments, elements = None, [], []
-    for line in header[1:]:
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "format":
-            fmt = parts[1]
-        elif parts[0] in ("comment", "obj_info"):
-            comments.append(line.split(None, 1)[1] if len(parts) > 1 else "")
-        elif parts[0] == "element":
-            elements.append([parts[1], int(parts[2]), []])
-        elif parts[0] == "property" and elements:
-            if parts[1] == "list":
-                elements[-1][2].append((parts[4], "list", _PLY_TYPES[parts[2]], _PLY_TYPES[parts[3]]))
-            else:
-                elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]], None, None))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise AssetError(f"{path}: unsupported PLY format {fmt!r}")
-    vertex, faces = {}, np.zeros((0, 3), np.int64)
-    if fmt == "ascii":
-        tokens = data[body_start:].split()
-        pos = 0
-        for name, count, props in elements:
-            if all(p[1] != "list" for p in props):
-                n = len(props)
-                arr = np.asarray(tokens[pos:pos + n * count], dtype=np.float64).reshape(count, n)
-                pos += n * count
-                if name == "vertex":
-                    vertex = {p[0]: arr[:, i] for i, p in enumerate(props)}
-            else:
-                # Faces: per row, scalar props then one list; vectorised when all lists are triangles.
-                polys = []
-                for _ in range(count):
-                    row = []
-                    for p in props:
-                        if p[1] == "list":
-                            k = int(tokens[pos])
-                            row = [int(t) for t in tokens[pos + 1:pos + 1 + k]]
-                            pos += 1 + k
-                        else:
-                            pos += 1
-                    polys.append(row)
-                if name == "face":
-                    faces = _triangulate(polys)
-    else:
-        endian = "<" if fmt == "binary_little_endian" else ">"
-        off = body_start
-        for name, count, props in elements:
-            if all(p[1] != "list" for p in props):
-                dt = np.dtype([(p[0], endian + p[1]) for p in props])
-                arr = np.frombuffer(data, dtype=dt, count=count, offset=off)
-                off += dt.itemsize * count
-                if name == "vertex":
-                    vertex = {p[0]: arr[p[0]].astype(np.float64) for p in props}
-            else:
-                faces_e, off = _binary_lists(data, off, count, props, endian)
-                if name == "face":
-                    faces = faces_e
-    return vertex, faces, comments
-
-
-def _binary_lists(data: bytes, off: int, count: int, props, endian: str):
-    list_props = [p for p in props if p[1] == "list"]
-    if len(props) == 1 and len(list_props) == 1:
-        cnt_t, idx_t = np.dtype(endian + list_props[0][2]), np.dtype(endian + list_props[0][3])
-        # Fast path: every polygon a triangle (true for BOP and most exporters).
-        dt = np.dtype([("n", cnt_t), ("i", idx_t, (3,))])
-        if len(data) - off >= dt.itemsize * count:
-            arr = np.frombuffer(data, dtype=dt, count=count, offset=off)
-            if (arr["n"] == 3).all():
-                return arr["i"].astype(np.int64), off + dt.itemsize * count
-    polys = []
-    for _ in range(count):
-        row = []
-        for p in props:
-            if p[1] == "list":
-                ct, it = np.dtype(endian + p[2]), np.dtype(endian + p[3])
-                k = int(np.frombuffer(data, ct, 1, off)[0])
-                off += ct.itemsize
-                row = np.frombuffer(data, it, k, off).tolist()
-                off += it.itemsize * k
-            else:
-                off += np.dtype(p[1]).itemsize
-        polys.append(row)
-    return _triangulate(polys), off
-
-
-def _triangulate(polys: list[list[int]]) -> np.ndarray:
-    if polys and all(len(p) == 3 for p in polys):
-        return np.asarray(polys, dtype=np.int64)
-    tris = [(p[0], p[i], p[i + 1]) for p in polys for i in range(1, len(p) - 1)]
-    return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
-
-
-def _ply_to_mesh(path: Path) -> tuple[MeshData, str | None]:
-    """-> (mesh in file units, texture file named in the header or None)."""
+def parse_urdf(path: Path) -> list[urdf_reader.Visual]:
     try:
-        v, f, comments = read_ply(path)
-    except AssetError:
-        raise
-    except (ValueError, IndexError, KeyError, UnicodeDecodeError) as e:
-        raise AssetError(f"{path}: corrupt PLY: {e}") from e
-    if not {"x", "y", "z"} <= set(v):
-        raise AssetError(f"{path}: PLY has no vertex x/y/z (empty or corrupt mesh)")
-    verts = np.stack([v["x"], v["y"], v["z"]], 1)
-    normals = np.stack([v["nx"], v["ny"], v["nz"]], 1) if {"nx", "ny", "nz"} <= set(v) else None
-    uv = None
-    for ku, kv in (("texture_u", "texture_v"), ("u", "v"), ("s", "t")):
-        if ku in v and kv in v:
-            uv = np.stack([v[ku], v[kv]], 1)
-            break
-    colors = None
-    if {"red", "green", "blue"} <= set(v):
-        c = [v["red"], v["green"], v["blue"], v.get("alpha", np.full(len(verts), 255.0))]
-        colors = np.clip(np.stack(c, 1), 0, 255).astype(np.uint8)
-    texture = None
-    for c in comments:
-        parts = c.split()
-        if len(parts) >= 2 and parts[0].lower() == "texturefile":
-            texture = c.split(None, 1)[1].strip()
-    mesh = MeshData(
-        vertices=verts, faces=f.astype(np.int32), normals=normals, uv=uv, colors=colors
-    )
-    return mesh, texture
-
-
-def _trimesh_to_mesh(path: Path) -> MeshData:
-    import trimesh
-
-    try:
-        loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=False)
-    except Exception as e:  # trimesh raises a zoo of types for broken files
-        raise AssetError(f"{path}: cannot read mesh ({type(e).__name__}: {e})") from e
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0 or len(loaded.faces) == 0:
-        raise AssetError(f"{path}: empty mesh (no vertices or triangles)")
-    uv = colors = None
-    vis = loaded.visual
-    if getattr(vis, "kind", None) == "texture" and getattr(vis, "uv", None) is not None:
-        if len(vis.uv) == len(loaded.vertices):
-            uv = np.asarray(vis.uv, np.float64)
-    elif getattr(vis, "kind", None) == "vertex":
-        colors = np.asarray(vis.vertex_colors, np.uint8)
-    verts = np.asarray(loaded.vertices, np.float64)
-    normals = None
-    if np.isfinite(verts).all():
-        normals = np.asarray(loaded.vertex_normals, np.float64)
-    return MeshData(vertices=verts, faces=np.asarray(loaded.faces, np.int32), normals=normals, uv=uv, colors=colors)
+        return urdf_reader.parse_urdf(path)
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
 
 
 def read_any_mesh(path: Path) -> tuple[MeshData, str | None]:
@@ -474,11 +252,14 @@ def read_any_mesh(path: Path) -> tuple[MeshData, str | None]:
         raise AssetError(f"{path}: file not found")
     if path.stat().st_size == 0:
         raise AssetError(f"{path}: empty file")
-    if path.suffix.lower() == ".ply":
-        return _ply_to_mesh(path)
-    if path.suffix.lower() not in (".obj", ".glb", ".gltf", ".stl", ".off"):
+    if path.suffix.lower() not in (".ply", ".obj", ".glb", ".gltf", ".stl", ".off"):
         raise AssetError(f"{path}: unsupported mesh format {path.suffix!r} (PLY, OBJ, GLB, STL)")
-    return _trimesh_to_mesh(path), None
+    try:
+        if path.suffix.lower() == ".ply":
+            return ply.ply_to_mesh(path)
+        return single.read_single(path), None
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
 
 
 def _primitive_mesh(prim: tuple) -> MeshData:
@@ -724,11 +505,11 @@ def _convert_builtin(src: _Source):
     b = src.builtin
     root = pybullet_data_root()
     up = np.eye(4)
-    up[:3, :3] = procedural.rpy_matrix(*b.up_fix)
+    up[:3, :3] = rpy_matrix(*b.up_fix)
     if b.urdf:
         visuals = parse_urdf(root / b.urdf)
     else:
-        visuals = [_Visual(root / b.mesh, None, (b.scale,) * 3, np.eye(4), None)]
+        visuals = [urdf_reader.Visual(root / b.mesh, None, (b.scale,) * 3, np.eye(4), None)]
     parts, texture, colour = [], None, None
     for vis in visuals:
         if vis.mesh is not None:

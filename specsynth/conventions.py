@@ -8,6 +8,8 @@ specsynth's camera is OpenCV's (x right, y down, z forward); world is metres, Z 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 M_TO_MM = 1000.0
@@ -74,3 +76,14 @@ def opengl_projection(K: np.ndarray, width: int, height: int, near: float, far: 
     P[2, 3] = -2 * far * near / (far - near)
     P[3, 2] = -1
     return P
+
+
+def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """URDF/ROS fixed-axis convention (radians): R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch),
+                              math.cos(yaw), math.sin(yaw))
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])

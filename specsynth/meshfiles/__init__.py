@@ -5,8 +5,12 @@ own length unit but in our frame (+Z up); each part's material is a backend-neut
 :class:`~specsynth.ir.MaterialIR`. ``source_files(path)`` lists every file whose bytes the result
 depends on (the mesh, its material libraries, buffers and textures), for content keys.
 
-Formats: glTF 2.0 (``.glb``/``.gltf``, :mod:`.gltf`) and OBJ with its MTL (:mod:`.obj`). PLY, STL
-and URDF stay single-material (:mod:`specsynth.assets`).
+One module per format, all producing :class:`~specsynth.meshio.MeshData` (and, for the
+multi-material formats, :class:`~specsynth.ir.MaterialIR` per part): glTF 2.0 (``.glb``/``.gltf``,
+:mod:`.gltf`) and OBJ with its MTL (:mod:`.obj`) keep every material; PLY (:mod:`.ply`), STL/OFF
+(:mod:`.single`) and URDF visuals (:mod:`.urdf`) are single-material, read through
+:mod:`specsynth.assets`. Readers raise :class:`MeshFileError` naming the file; texture maps are
+baked once into a content-keyed cache (:mod:`.bake`).
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ from pydantic import ValidationError
 
 from .. import assets
 from ..assets import AssetError
+from ..conventions import rpy_matrix
 from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from ..meshio import MeshData, read_mesh
 from . import procedural
@@ -152,7 +153,7 @@ def _source_kind(m: SceneMesh) -> str:
 def _rotation(rot) -> np.ndarray:
     if isinstance(rot[0], (tuple, list)):
         return np.asarray(rot, dtype=np.float64)
-    return procedural.rpy_matrix(*(math.radians(a) for a in rot))
+    return rpy_matrix(*(math.radians(a) for a in rot))
 
 
 def _scale3(s) -> np.ndarray:

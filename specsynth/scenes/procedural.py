@@ -14,17 +14,6 @@ import numpy as np
 from ..meshio import MeshData
 
 
-def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """URDF/ROS fixed-axis convention (radians): R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
-    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch),
-                              math.cos(yaw), math.sin(yaw))
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
-
-
 def _quad_faces(n_quads: int) -> np.ndarray:
     base = np.arange(n_quads)[:, None] * 4
     return np.concatenate([base + [0, 1, 2], base + [0, 2, 3]]).astype(np.int32)
