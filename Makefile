@@ -10,12 +10,13 @@ export PYOPENGL_PLATFORM ?= egl
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/install-system-deps.sh
+$(STAMP): pyproject.toml scripts/install-system-deps.sh scripts/install-assets.sh
 	./scripts/install-system-deps.sh
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (Python 3.11)"; exit 1; }
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[all]'
+	./scripts/install-assets.sh $(BIN)/python
 	touch $(STAMP)
 
 demo: install

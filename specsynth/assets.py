@@ -69,6 +69,15 @@ class ObjectAsset:
     extents: tuple[float, float, float]  # metres, bounding-box size
     source: str  # where it came from (path or 'pybullet_data:duck')
 
+    @property
+    def credit(self) -> dict[str, str] | None:
+        """Attribution of a built-in (third-party) model; a user's own model needs none."""
+        if not self.source.startswith("pybullet_data:"):
+            return None
+        return {"asset": f"object:{self.name}", "name": self.name, "author": "pybullet_data contributors",
+                "copyright": "", "licence": "as distributed with pybullet (zlib licence, see pybullet's LICENSE.txt)",
+                "source": f"pybullet_data (PyPI package pybullet), {self.source.split(':', 1)[1]}"}
+
 
 # --------------------------------------------------------------------------- paths, hashing
 

@@ -374,8 +374,9 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
 
         # ------------------------------------------------------ merge
         t0 = time.perf_counter()
-        images = []
+        images, credits = [], []
         for a, views, renders in arr_jobs:
+            arec = {}
             if store.has("arrange", a.key):
                 arec = store.load("arrange", a.key)
                 summary.objects_removed += arec["removed"]
@@ -383,14 +384,17 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
             for r in renders:
                 if store.has("render", r.key):
                     images.append((ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)))
+                    credits += arec.get("credits", [])
         summary.images = len(images)
         summary.instances = sum(len(im.instances) for im, _ in images)
         _account_savings(summary, images, cached_render)
         from .assets import resolve_objects
         from .writers import write_outputs
+        from .writers.attribution import write_attribution
 
         models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
         write_outputs(out, graph.spec, images, models)
+        write_attribution(out, credits, graph.spec.name)
         write_manifest(graph, out, arr_jobs)
         summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
         summary.wall_seconds = time.perf_counter() - t_build

@@ -178,7 +178,10 @@ def cmd_scenes(args) -> int:
     for col in ("scene", "stage", "area m²", "height m"):
         t.add_column(col)
     for name in builtin_scenes():
-        for stage, area, height in stage_table(name):
+        rows = stage_table(name)
+        if not rows:
+            t.add_row(name, "(found per arrangement: a new room each)", "", "")
+        for stage, area, height in rows:
             t.add_row(name, stage.name, f"{area:.3f}", f"{height:.3f}")
     Console().print(t)
     return 0
@@ -203,6 +206,25 @@ def _show_scene(args) -> int:
     out = Path(args.out if args.out != "scene.png" else "scene_top.png")
     top_down(desc).save(out)
     print(f"wrote {out} (top-down, stages outlined)")
+    return 0
+
+
+def cmd_furniture(args) -> int:
+    from .library.furniture import catalogue
+
+    items = [i for i in catalogue() if not args.category or i.category.lower() == args.category.lower()]
+    if args.json:
+        print(json.dumps([{"id": i.id, "name": i.name, "category": i.category, "size_m": i.size,
+                           "drop_on_top_m": i.drop_on_top, "licence": i.licence, "author": i.creator} for i in items],
+                         indent=1))
+        return 0
+    t = Table(title=f"Sweet Home 3D furniture ({len(items)} models)")
+    for col in ("id", "name", "category", "w x d x h m", "top m", "licence"):
+        t.add_column(col)
+    for i in items:
+        t.add_row(i.id, i.name, i.category, " x ".join(f"{v:.2f}" for v in i.size),
+                  "" if i.drop_on_top is None else f"{i.drop_on_top:.2f}", i.licence)
+    Console().print(t)
     return 0
 
 
@@ -319,6 +341,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--samples", type=int, default=32)
     p.set_defaults(fn=cmd_scenes)
 
+    p = sub.add_parser("furniture", help="list the furniture library (ids for scene files' {furniture: ID} sources)")
+    p.add_argument("--category", help="e.g. 'Living room', 'Kitchen', 'Office', 'Bedroom'")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_furniture)
+
     p = sub.add_parser("view", help="contact sheet of sampled images with boxes, mask outlines, ids")
     p.add_argument("outs", nargs="+", help="one output folder, or two to compare (e.g. PBR and BL)")
     p.add_argument("--out", required=True, help="PNG file to write")
@@ -369,9 +396,10 @@ def main(argv: list[str] | None = None) -> int:
         from .assets import AssetError
         from .backend_api import PluginNotFound
         from .build import BuildLocked
+        from .library.furniture import LibraryError
         from .writers.yolo import ExportError
 
-        if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError)):
+        if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError, LibraryError)):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)

@@ -31,6 +31,14 @@ class ArrangementRecord:
     settled: bool = True
     sim_seconds: float = 0.0  # simulated time
     seed: int = 0
+    credits: list[dict] = field(default_factory=list)  # third-party assets of its scene (attribution)
+
+    @property
+    def scene_ref(self) -> tuple[str, int | None]:
+        """(the spec's scene ref, the procedural variant or None): ``scene`` is "random_room#123"
+        for a procedural scene, whose room is drawn from that seed."""
+        name, _, variant = self.scene.partition("#")
+        return name, int(variant) if variant else None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

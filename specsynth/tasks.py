@@ -23,10 +23,13 @@ from .colour import check_finite
 from .compiler import Job
 from .ir import MeshInstance, RenderScene, as_tuple
 from .records import ArrangementRecord, ImageRecord, PlacedObject, ViewRecord
-from .scenes import load_scene
+from .scenes import load_scene, procedural_name
 from .scenes.types import SceneDesc
 from .spec import DatasetSpec, SceneRef
 from .store import Store
+
+
+PROCEDURAL_KEPT = 2  # procedural rooms a worker keeps loaded (one per arrangement in flight)
 
 
 @dataclass(frozen=True)
@@ -49,7 +52,7 @@ class Worker:
         self.spec = ctx.spec
         self.store = Store(ctx.out)
         self._assets: list[ObjectAsset] | None = None
-        self._scenes: dict[str, SceneDesc] = {}
+        self._scenes: dict[tuple[str, int | None], SceneDesc] = {}
         self._annotator = None
         self._backend = None
         # What the annotator / backend hold now: (arrangement key, seconds its load took).
@@ -66,11 +69,16 @@ class Worker:
             self._assets = resolve_objects(self.spec.objects, self.ctx.spec_dir)
         return self._assets
 
-    def scene(self, ref: SceneRef) -> SceneDesc:
-        if ref.ref not in self._scenes:
+    def scene(self, ref: SceneRef, variant: int | None = None) -> SceneDesc:
+        key = (ref.ref, variant)
+        if key not in self._scenes:
+            if variant is not None:  # procedural rooms: keep the last few, so memory stays flat
+                rooms = [k for k in self._scenes if k[1] is not None]
+                for old in rooms[: max(0, len(rooms) - PROCEDURAL_KEPT + 1)]:
+                    del self._scenes[old]
             clearance = self.spec.arrangements.drop_height[1] + max((a.diameter for a in self.assets()), default=0.0)
-            self._scenes[ref.ref] = load_scene(ref, self.ctx.spec_dir, clearance=clearance)
-        return self._scenes[ref.ref]
+            self._scenes[key] = load_scene(ref, self.ctx.spec_dir, clearance=clearance, variant=variant)
+        return self._scenes[key]
 
     def annotator(self):
         if self._annotator is None:
@@ -133,7 +141,8 @@ class Worker:
             )
             for o in arr.objects
         )
-        return self.scene(self._scene_ref(arr.scene)).with_objects(objects)
+        name, variant = arr.scene_ref
+        return self.scene(self._scene_ref(name), variant).with_objects(objects)
 
     def frame(self, arr: ArrangementRecord) -> tuple[RenderScene, np.ndarray]:
         """The scene re-centred on its objects, and the offset to apply to cameras.
@@ -158,7 +167,8 @@ class Worker:
         spec = self.spec
         index, rng = seeds.scene_draw(spec.seed, job.id, [s.weight for s in spec.scenes])
         ref = spec.scenes[index]
-        scene = self.scene(ref)
+        variant = seeds.job_seed(spec.seed, f"{job.id}/scene") if procedural_name(ref) else None
+        scene = self.scene(ref, variant)
         names = ref.stages or sorted(scene.stages)
         missing = [n for n in names if n not in scene.stages]
         if missing:
@@ -182,9 +192,10 @@ class Worker:
             for n, (i, pose) in enumerate(result.placed)
         ]
         rec = ArrangementRecord(
-            arr=job.arr, scene=ref.ref, stage=stage.name, objects=placed, dropped=len(drop),
-            removed=result.removed, redropped=result.redropped, settled=result.settled,
-            sim_seconds=result.sim_seconds, seed=job.seed,
+            arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
+            objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
+            settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
+            credits=list(scene.credits) + [a.credit for a in models if a.credit],
         )
         self.store.put("arrange", job.key, rec.to_json())
         return {"id": job.id, "removed": rec.removed, "redropped": rec.redropped, "objects": len(placed)}

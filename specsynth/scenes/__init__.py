@@ -8,6 +8,7 @@ UVs pre-multiplied by the material's ``uv_scale`` so textures tile) and placed b
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -26,7 +27,8 @@ from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from ..meshio import MeshData, read_mesh
 from . import procedural
 from .. import meshfiles
-from . import autostage, filemeshes, gltfscene
+from ..library import furniture, textures
+from . import autostage, filemeshes, furnish, gltfscene, random_room
 from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
 from .types import SceneDesc, Stage
 
@@ -41,8 +43,17 @@ class SceneError(AssetError):
     """An invalid or unloadable scene file; the message names the file (and field, line)."""
 
 
+# Built-in scenes made by code, one variant per seed (each arrangement draws its own).
+PROCEDURAL = ("random_room",)
+
+
 def builtin_scenes() -> list[str]:
-    return sorted(p.stem for p in BUILTIN_DIR.glob("*.yaml"))
+    return sorted([p.stem for p in BUILTIN_DIR.glob("*.yaml")] + list(PROCEDURAL))
+
+
+def procedural_name(ref) -> str | None:
+    name = getattr(ref, "name", None) if not isinstance(ref, str) else ref
+    return name if name in PROCEDURAL else None
 
 
 def _scene_path(ref, spec_dir: Path) -> Path:
@@ -165,7 +176,11 @@ def _uv2(s) -> np.ndarray:
 
 
 def _source_files(m: SceneMesh, scene_path: Path) -> tuple[Path | None, list[Path], Path | None]:
-    """(source file, every file it reads, its own texture) of a file-based mesh."""
+    """(source file, every file it reads, its own texture) of a file-based mesh. A library model's
+    bytes are those of its archive (fingerprinting never unpacks anything)."""
+    if _source_kind(m) == "furniture":
+        item = furniture.find(m.source.furniture)
+        return None, [furniture.library_dir() / f"{item.archive}.sh3f"], None
     if _source_kind(m) != "file":
         return None, [], None
     what = f"{scene_path}: meshes.{m.name}.source"
@@ -310,14 +325,24 @@ def _stage(sd) -> Stage:
     return Stage(name=sd.name, polygon=tuple(poly), height=float(sd.height))
 
 
-def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float | None = None) -> SceneDesc:
+def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float | None = None,
+               variant: int | None = None) -> SceneDesc:
     """Resolve a scene (built-in name, SceneRef, or file) into a ``SceneDesc``; meshes cached.
+    ``variant`` is the seed of a procedural scene (``random_room``): one room per seed.
 
     ``clearance`` (metres of free space a stage needs above it: the spec's largest drop height plus
     its largest object) only matters to a scene whose stages are found automatically."""
-    path = _scene_path(ref, spec_dir)
-    sf = read_scene_file(path)
     cache = Path(cache) if cache is not None else assets.cache_dir()
+    credits: list[dict] = []
+    if procedural_name(ref):
+        path = BUILTIN_DIR / f"{procedural_name(ref)}.py"
+        try:
+            sf, credits = random_room.random_room(int(variant or 0), cache)
+        except (furniture.LibraryError, textures.TextureLibraryError) as e:
+            raise SceneError(f"scene {procedural_name(ref)!r}: {e}") from None
+    else:
+        path = _scene_path(ref, spec_dir)
+        sf = read_scene_file(path)
     meshes, colliders = [], []
     for m in sf.meshes:
         what = f"{path}: meshes.{m.name}"
@@ -325,11 +350,13 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
             parts = _load_mesh(m, path, cache, what)
         except SceneError:
             raise
-        except (AssetError, meshfiles.MeshFileError) as e:
+        except (AssetError, meshfiles.MeshFileError, furniture.LibraryError) as e:
             raise SceneError(str(e) if str(e).startswith(str(path)) else f"{what}: {e}") from e
         T = np.eye(4)
         T[:3, :3] = _rotation(m.transform.rotation)
         T[:3, 3] = m.transform.translation
+        if _source_kind(m) == "furniture":
+            credits.append(furniture.find(m.source.furniture).credit)
         for name, ply, mesh_key, material in parts:
             meshes.append(MeshInstance(name=name, mesh_path=str(ply), mesh_key=mesh_key, pose=as_tuple(T),
                                        material=material))
@@ -352,6 +379,7 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
         world=_world(sf.world, path),
         stages=stages,
         colliders=None if len(colliders) == len(meshes) else tuple(colliders),
+        credits=tuple({c["asset"]: c for c in credits}.values()),
     )
 
 
@@ -360,6 +388,11 @@ def _load_mesh(m: SceneMesh, path: Path, cache: Path, what: str) -> list[tuple[s
     part, or one per material of a glTF/OBJ file (named ``<mesh>/<material>``)."""
     src, files, own_tex = _source_files(m, path)
     key = _mesh_cache_key(m, files, what)
+    prepare = None
+    if _source_kind(m) == "furniture":
+        item = furniture.find(m.source.furniture)
+        src = furniture.extract(item, cache)
+        prepare = functools.partial(furnish.normalise_parts, item=item)
     if not filemeshes.is_multi_material(src):
         if m.materials:
             raise SceneError(f"{what}.materials: only glTF and OBJ files have named materials")
@@ -369,7 +402,7 @@ def _load_mesh(m: SceneMesh, path: Path, cache: Path, what: str) -> list[tuple[s
         else:
             ply, mesh_key = assets.store_mesh(_build_geometry(m, src, what), key, cache)
         return [(m.name, ply, mesh_key, _material(m, own_tex, path, what))]
-    parts = filemeshes.convert_parts(m, src, key, cache, lambda mesh: _finish_geometry(m, mesh, what))
+    parts = filemeshes.convert_parts(m, src, key, cache, lambda mesh: _finish_geometry(m, mesh, what), prepare)
     unknown = sorted(set(m.materials) - {p[1] for p in parts})
     if unknown:
         have = ", ".join(sorted({p[1] for p in parts}))
@@ -402,11 +435,21 @@ def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], c
 
 def declares_stages(ref, spec_dir: Path) -> bool:
     """Whether a scene lists its stages (else they are found in its geometry at load time)."""
-    return not read_scene_file(_scene_path(ref, spec_dir)).auto_stages
+    return not procedural_name(ref) and not read_scene_file(_scene_path(ref, spec_dir)).auto_stages
 
 
 def scene_fingerprint(ref, spec_dir: Path) -> str:
-    """Content hash of a scene: its file and every file it references (no mesh conversion)."""
+    """Content hash of a scene: its file and every file it references (no mesh conversion). A
+    procedural scene's: its generator and the asset libraries it draws from."""
+    if procedural_name(ref):
+        h = hashlib.sha256(f"procedural {procedural_name(ref)} v{random_room.GENERATOR_VERSION} "
+                           f"{assets.CONVERSION_VERSION}.{SCENE_VERSION}.{filemeshes.PARTS_VERSION}\n".encode())
+        for archive in sorted(furniture.library_dir().glob("*.sh3f")):
+            h.update(assets.file_digest(archive).encode())
+        manifest = textures.folder(assets.cache_dir()) / "manifest.json"
+        h.update(manifest.read_bytes() if manifest.is_file() else b"no textures")
+        h.update(json.dumps(getattr(ref, "stages", None)).encode())
+        return h.hexdigest()
     path = _scene_path(ref, spec_dir)
     sf = read_scene_file(path)
     files = [path]
@@ -432,6 +475,8 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
 
 def stage_table(name, spec_dir: Path | None = None) -> list[tuple[Stage, float, float]]:
     """(stage, area m^2, height m) of a scene's stages, from the file alone (no meshes built)."""
+    if procedural_name(name):
+        return []  # a new room, and new stages, for every arrangement
     path = _scene_path(name, Path(spec_dir) if spec_dir is not None else Path.cwd())
     sf = read_scene_file(path)
     if sf.auto_stages:

@@ -9,7 +9,7 @@ upward-facing samples (normal within ``max_tilt`` of +Z), a grid cell is a stage
   a shelf board 10 cm up is not a stage, and the feet of what stands on a surface are cut out).
 
 Stage cells are shrunk by ``margin`` and covered greedily by the largest axis-aligned rectangles
-(each at least ``min_side`` on both sides): exact polygons, and what tables, shelves, counters and
+(each at least ``min_side`` on both sides and ``min_area`` in all): exact polygons, and what tables, shelves, counters and
 open floor are. Names are stable for the same geometry: ``auto_<height mm>_<rank>``.
 """
 
@@ -33,7 +33,8 @@ class AutoStageParams:
     max_tilt_deg: float = 10.0
     height_tol: float = 0.01  # metres: samples this close in height form one level
     margin: float = 0.03  # metres kept free along a stage's edges
-    min_side: float = 0.15  # metres: narrower rectangles are not stages
+    min_side: float = 0.2  # metres: narrower rectangles are not stages
+    min_area: float = 0.06  # m^2: physics cannot keep a few objects on less (a chair's seat)
     max_per_level: int = 4
 
 
@@ -142,7 +143,7 @@ def _rectangles(free: np.ndarray, level: float, lo: np.ndarray, cell: float, par
         ys, xs = np.nonzero(free)  # search only the bounding box of what is left
         r0, c0 = ys.min(), xs.min()
         area, a, b, c, d = largest_rectangle(free[r0 : ys.max() + 1, c0 : xs.max() + 1])
-        if area == 0 or (c - a + 1) < min_cells or (d - b + 1) < min_cells:
+        if area == 0 or (c - a + 1) < min_cells or (d - b + 1) < min_cells or area * cell * cell < params.min_area:
             break
         a, b, c, d = a + r0, b + c0, c + r0, d + c0
         free[a : c + 1, b : d + 1] = False

@@ -52,9 +52,12 @@ def _texture_path(ref: dict | None, src: Path, cache: Path) -> str | None:
 
 
 def convert_parts(
-    m: SceneMesh, src: Path, key: str, cache: Path, finish: Callable[[MeshData], MeshData]
+    m: SceneMesh, src: Path, key: str, cache: Path, finish: Callable[[MeshData], MeshData],
+    prepare: Callable[[list], list] | None = None,
 ) -> list[tuple[str, str, Path, str, MaterialIR]]:
-    """-> (part name, material name in the file, PLY path, mesh_key, file material) per part."""
+    """-> (part name, material name in the file, PLY path, mesh_key, file material) per part.
+    ``prepare`` transforms the file's parts as a whole first (library furniture is sized on its
+    overall bounding box), ``finish`` each part's mesh after."""
     sidecar = cache / "assets" / f"{key}.parts.json"
     try:
         meta = json.loads(sidecar.read_text())
@@ -63,6 +66,8 @@ def convert_parts(
     except (OSError, ValueError, KeyError):
         pass  # absent, torn or stale: convert again
     parts = meshfiles.read_parts(src, cache / "assets" / TEXTURE_DIR)
+    if prepare is not None:
+        parts = prepare(parts)
     rows = []
     for i, part in enumerate(parts):
         ply, mesh_key = assets.store_mesh(finish(part.mesh), f"{key}.{i}", cache)

@@ -59,13 +59,20 @@ class Cylinder(_Strict):
     cylinder: CylinderSize
 
 
+class Furniture(_Strict):
+    furniture: str = Field(
+        description="A Sweet Home 3D library model by id, e.g. 'Blend Swap CC-0#armchair' (specsynth furniture "
+        "lists them): sized to its catalogue dimensions, standing on z = 0, front facing -Y."
+    )
+
+
 def _source_tag(v) -> str | None:
     if isinstance(v, str):
         return "file"
     if isinstance(v, dict) and len(v) == 1:
         key = next(iter(v))
-        return key if key in ("box", "plane", "cylinder") else None
-    for cls, tag in ((Box, "box"), (Plane, "plane"), (Cylinder, "cylinder")):
+        return key if key in ("box", "plane", "cylinder", "furniture") else None
+    for cls, tag in ((Box, "box"), (Plane, "plane"), (Cylinder, "cylinder"), (Furniture, "furniture")):
         if isinstance(v, cls):
             return tag
     return None
@@ -78,13 +85,14 @@ Source = Annotated[
         Annotated[Box, Tag("box")],
         Annotated[Plane, Tag("plane")],
         Annotated[Cylinder, Tag("cylinder")],
+        Annotated[Furniture, Tag("furniture")],
         Annotated[str, Tag("file")],
     ],
     Discriminator(
         _source_tag,
         custom_error_type="invalid_source",
         custom_error_message="source must be {box: [sx, sy, sz]}, {plane: [sx, sy]}, "
-        "{cylinder: {radius, height}} or a mesh file ('pybullet_data:...' or a relative path)",
+        "{cylinder: {radius, height}}, {furniture: <library id>} or a mesh file ('pybullet_data:...' or a relative path)",
     ),
 ]
 

@@ -62,6 +62,8 @@ class SceneDesc:
     stages: dict[str, Stage]
     # Names of meshes that physics collides with; default (None) all meshes.
     colliders: tuple[str, ...] | None = None
+    # Third-party assets in the scene (furniture, textures): what a build's attribution lists.
+    credits: tuple[dict, ...] = ()
 
     def collider_meshes(self) -> tuple[MeshInstance, ...]:
         if self.colliders is None:

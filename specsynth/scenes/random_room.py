@@ -1,0 +1,176 @@
+"""``random_room``: a furnished room drawn from a seed, a new one for every arrangement.
+
+The room (size, floor/wall/ceiling textures, a window with an HDRI sky behind it, lights) and its
+furniture (Sweet Home 3D library models of the room's kind, against the walls facing in, plus a
+table or two in the free middle, never overlapping) all come from one ``numpy`` generator seeded
+by the arrangement, so the same seed gives the same room on every machine. Stages are found on
+what was placed (table tops, shelves, counters, the free floor), by :mod:`.autostage`.
+
+Units: metres; the interior spans x in [-W/2, W/2], y in [-D/2, D/2], floor at z = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..library import furniture, textures
+from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
+
+GENERATOR_VERSION = 1
+ROOM_KINDS = {
+    "living_room": ("Living room",),
+    "kitchen": ("Kitchen",),
+    "office": ("Office",),
+    "bedroom": ("Bedroom",),
+}
+OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
+WALL = 0.1  # wall thickness, metres
+GAP = 0.06  # free space kept between pieces of furniture
+
+
+@dataclass(frozen=True)
+class Placed:
+    item: furniture.FurnitureItem
+    x: float
+    y: float
+    yaw: float  # degrees; the front faces -Y at 0
+    footprint: tuple[float, float, float, float]  # x0, y0, x1, y1
+
+
+def _fits(items, room_w: float, room_d: float, room_h: float) -> list[furniture.FurnitureItem]:
+    return [i for i in items if not i.door_or_window and not i.light and i.elevation == 0
+            and max(i.size[0], i.size[1]) < 0.6 * min(room_w, room_d) and 0.3 < i.size[2] < room_h - 0.3
+            and min(i.size[0], i.size[1]) > 0.2]
+
+
+def _overlaps(fp, placed: list[Placed]) -> bool:
+    x0, y0, x1, y1 = fp
+    return any(x0 < q.footprint[2] + GAP and q.footprint[0] < x1 + GAP and y0 < q.footprint[3] + GAP
+               and q.footprint[1] < y1 + GAP for q in placed)
+
+
+def _against_wall(rng, item, W, D, window) -> tuple[float, float, float, tuple]:
+    """A position with the piece's back to a random wall, front facing into the room."""
+    w, d, _ = item.size
+    wall = int(rng.integers(4))
+    if wall in (0, 1):  # north (y = +D/2, faces -y: yaw 0), south (faces +y: yaw 180)
+        x = float(rng.uniform(-W / 2 + w / 2, W / 2 - w / 2))
+        y = D / 2 - d / 2 - 0.01 if wall == 0 else -D / 2 + d / 2 + 0.01
+        yaw, fp = (0.0 if wall == 0 else 180.0), (x - w / 2, y - d / 2, x + w / 2, y + d / 2)
+    else:  # east (x = +W/2, faces -x: yaw -90), west (faces +x: yaw 90)
+        y = float(rng.uniform(-D / 2 + w / 2, D / 2 - w / 2))
+        x = W / 2 - d / 2 - 0.01 if wall == 2 else -W / 2 + d / 2 + 0.01
+        yaw, fp = (-90.0 if wall == 2 else 90.0), (x - d / 2, y - w / 2, x + d / 2, y + w / 2)
+    if wall == 0 and item.size[2] > window[2] and fp[0] < window[1] and window[0] < fp[2]:
+        return None  # a tall piece would block the window
+    return x, y, yaw, fp
+
+
+def furnish(rng, items, W, D, window, n_wall: int, n_middle: int) -> list[Placed]:
+    placed: list[Placed] = []
+    surfaces = [i for i in items if i.drop_on_top is not None and 0.35 < i.drop_on_top < 1.3]
+    others = [i for i in items if i not in surfaces]
+    for k in range(n_wall):
+        pool = surfaces if (k % 2 == 0 or not others) else others  # half of them carry a stage
+        for _ in range(40):
+            item = pool[int(rng.integers(len(pool)))]
+            pos = _against_wall(rng, item, W, D, window)
+            if pos is not None and not _overlaps(pos[3], placed):
+                placed.append(Placed(item, *pos))
+                break
+    tables = [i for i in surfaces if i.size[0] > 0.5 and i.size[1] > 0.4]
+    for _ in range(n_middle if tables else 0):
+        for _ in range(40):
+            item = tables[int(rng.integers(len(tables)))]
+            turn = bool(rng.integers(2))
+            w, d = (item.size[1], item.size[0]) if turn else item.size[:2]
+            x = float(rng.uniform(-W / 2 + w / 2 + 0.5, W / 2 - w / 2 - 0.5)) if W > w + 1.0 else 0.0
+            y = float(rng.uniform(-D / 2 + d / 2 + 0.5, D / 2 - d / 2 - 0.5)) if D > d + 1.0 else 0.0
+            fp = (x - w / 2, y - d / 2, x + w / 2, y + d / 2)
+            if not _overlaps(fp, placed):
+                placed.append(Placed(item, x, y, 90.0 if turn else 0.0, fp))
+                break
+    return placed
+
+
+def _tex(rng, options: list, what: str) -> tuple[str, float]:
+    if not options:
+        raise textures.TextureLibraryError(f"random_room: no {what} textures installed")
+    t = options[int(rng.integers(len(options)))]
+    return str(t.path), t
+
+
+def _box(name: str, size, at, material: SceneMaterial, collide: bool = True) -> SceneMesh:
+    return SceneMesh(name=name, source={"box": tuple(float(s) for s in size)},
+                     transform=Transform(translation=tuple(float(a) for a in at)), material=material, collide=collide)
+
+
+def _walls(W: float, D: float, H: float, window, mat: SceneMaterial) -> list[SceneMesh]:
+    """Four walls outside the interior; the north wall has the window opening (x0..x1, sill..top)."""
+    x0, x1, sill, top = window
+    t = WALL
+    out = [
+        _box("wall_south", (W + 2 * t, t, H), (0, -D / 2 - t / 2, H / 2), mat),
+        _box("wall_east", (t, D, H), (W / 2 + t / 2, 0, H / 2), mat),
+        _box("wall_west", (t, D, H), (-W / 2 - t / 2, 0, H / 2), mat),
+        _box("wall_north_left", (x0 + W / 2 + t, t, H), ((x0 - W / 2 - t) / 2, D / 2 + t / 2, H / 2), mat),
+        _box("wall_north_right", (W / 2 + t - x1, t, H), ((x1 + W / 2 + t) / 2, D / 2 + t / 2, H / 2), mat),
+        _box("wall_north_below", (x1 - x0, t, sill), ((x0 + x1) / 2, D / 2 + t / 2, sill / 2), mat),
+        _box("wall_north_above", (x1 - x0, t, H - top), ((x0 + x1) / 2, D / 2 + t / 2, (H + top) / 2), mat),
+    ]
+    return out
+
+
+def kelvin_rgb(kelvin: float) -> tuple[float, float, float]:
+    """Approximate linear RGB of a black body (normalised so the brightest channel is 1); good
+    enough for light colour jitter between 2700 K (warm bulbs) and 6500 K (daylight)."""
+    t = kelvin / 100.0
+    r = 1.0 if t <= 66 else min(1.0, 1.292936186 * (t - 60) ** -0.1332047592)
+    g = (0.390081578 * math.log(t) - 0.631841443) if t <= 66 else 1.129890861 * (t - 60) ** -0.0755148492
+    b = 1.0 if t >= 66 else (0.0 if t <= 19 else 0.543206789 * math.log(t - 10) - 1.196254089)
+    rgb = np.clip(np.array([r, g, b]), 0.0, 1.0) ** 2.2  # the fit is in sRGB-ish units
+    return tuple(float(c) for c in rgb / rgb.max())
+
+
+def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneFile, list[dict]]:
+    """The room of ``seed`` and the credits of every third-party asset in it."""
+    rng = np.random.default_rng(seed)
+    kind = kind or list(ROOM_KINDS)[int(rng.integers(len(ROOM_KINDS)))]
+    W, D, H = float(rng.uniform(3.6, 6.0)), float(rng.uniform(3.2, 5.0)), float(rng.uniform(2.5, 2.9))
+    win_w = float(rng.uniform(1.0, min(2.0, W - 1.2)))
+    wx = float(rng.uniform(-W / 2 + 0.5 + win_w / 2, W / 2 - 0.5 - win_w / 2))
+    window = (wx - win_w / 2, wx + win_w / 2, float(rng.uniform(0.8, 1.0)), float(rng.uniform(2.0, min(2.3, H - 0.2))))
+
+    floor_path, floor_t = _tex(rng, textures.of_kind(cache, "floor"), "floor")
+    wall_path, wall_t = _tex(rng, textures.of_kind(cache, "wall"), "wall")
+    floor_mat = SceneMaterial(texture=floor_path, uv_scale=1.0 / floor_t.tile, roughness=float(rng.uniform(0.3, 0.7)))
+    wall_mat = SceneMaterial(texture=wall_path, uv_scale=1.0 / wall_t.tile, roughness=0.85, specular=0.3)
+    meshes = [
+        SceneMesh(name="floor", source={"plane": (W, D)}, material=floor_mat),
+        _box("ceiling", (W + 2 * WALL, D + 2 * WALL, WALL), (0, 0, H + WALL / 2),
+             SceneMaterial(base_color=(0.82, 0.82, 0.8), roughness=0.9), collide=False),
+        *_walls(W, D, H, window, wall_mat),
+    ]
+    items = _fits([i for i in furniture.catalogue() if i.category in ROOM_KINDS[kind]], W, D, H)
+    placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(6, 11)), n_middle=int(rng.integers(1, 3)))
+    for k, p in enumerate(placed):
+        meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id},
+                                transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
+    warm = kelvin_rgb(float(rng.uniform(2700, 4500)))
+    lights = [
+        LightDef(kind="area", power=float(rng.uniform(60, 180)), size=(min(1.2, W / 3), min(1.2, D / 3)),
+                 color=warm, translation=(float(rng.uniform(-W / 6, W / 6)), float(rng.uniform(-D / 6, D / 6)), H - 0.02)),
+        LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 3500))),
+                 translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
+                              float(rng.uniform(1.6, H - 0.4)))),
+    ]
+    world = World(envmap=OUTDOOR_HDRIS[int(rng.integers(len(OUTDOOR_HDRIS)))], strength=float(rng.uniform(0.4, 0.9)),
+                  rotation=float(rng.uniform(0, 360)))
+    sf = SceneFile(name=f"random_room_{kind}", description=f"random_room seed {seed}", meshes=meshes, lights=lights,
+                   world=world)
+    credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed]
+    return sf, credits

@@ -1,0 +1,210 @@
+"""The asset library (Sweet Home 3D furniture, robosuite textures), library furniture in scenes,
+``random_room`` and the attribution file, on the real installed assets (make install)."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from specsynth.library import furniture, textures
+from specsynth.meshio import read_mesh
+from specsynth.scenes import SceneError, load_scene
+from specsynth.scenes.random_room import random_room
+from specsynth.spec import SceneRef
+
+pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")  # library models with missing maps say so
+
+
+@pytest.fixture()
+def cache(tmp_path, monkeypatch) -> Path:
+    """A fresh mesh cache that still sees the installed textures (make install put them in the real one)."""
+    from specsynth.assets import cache_dir
+
+    real = cache_dir()
+    c = tmp_path / "cache"
+    (c / "library").mkdir(parents=True)
+    (c / "library" / textures.FOLDER).symlink_to(textures.folder(real))
+    monkeypatch.setenv("SPECSYNTH_CACHE", str(c))
+    return c
+
+
+def test_catalogue_reads_every_archive_with_sizes_and_licences():
+    items = furniture.catalogue()
+    assert len(items) >= 800
+    by_id = {i.id: i for i in items}
+    chair = by_id["Blend Swap CC-0#armchair"]
+    assert chair.size == pytest.approx((0.594, 0.627, 1.05)) and chair.drop_on_top == pytest.approx(0.421)
+    assert chair.licence == "CC0-1.0" and chair.creator == "Absfrm"
+    assert {i.licence for i in items} == {"CC0-1.0", "CC-BY-3.0", "CC-BY-3.0-US"}
+    assert sum(i.rotation is not None for i in items) > 10 and sum(i.door_or_window for i in items) > 10
+    with pytest.raises(furniture.LibraryError, match="did you mean"):
+        furniture.find("Blend Swap CC-0#armchiar")
+
+
+def test_library_missing_is_a_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setenv("SPECSYNTH_SH3D_DIR", str(tmp_path))
+    with pytest.raises(furniture.LibraryError, match="install the Debian package sweethome3d-furniture"):
+        furniture.catalogue()
+
+
+def test_extraction_is_once_with_a_manifest_and_brings_shared_textures(tmp_path):
+    item = furniture.find("Scopia#bar_chair")  # its MTL names a texture kept in bar_table's folder
+    obj = furniture.extract(item, tmp_path)
+    manifest = json.loads((obj.parent / "manifest.json").read_text())["files"]
+    assert obj.name in manifest and "wood_table_chairs.jpg" in manifest
+    import hashlib
+
+    assert all(hashlib.sha256((obj.parent / n).read_bytes()).hexdigest() == h for n, h in manifest.items())
+    mtime = obj.stat().st_mtime_ns
+    assert furniture.extract(item, tmp_path) == obj and obj.stat().st_mtime_ns == mtime
+
+
+def test_textures_are_installed_with_kinds(cache):
+    kinds = {t.kind for t in textures.available(cache)}
+    assert {"floor", "wall", "worktop"} <= kinds and len(textures.available(cache)) >= 20
+    assert textures.of_kind(cache, "floor")[0].credit["licence"] == "MIT"
+
+
+def test_textures_not_installed_is_a_clear_error(tmp_path):
+    with pytest.raises(textures.TextureLibraryError, match="run `make install`"):
+        textures.available(tmp_path)
+
+
+def test_library_furniture_is_sized_and_stands_on_the_floor(tmp_path, cache):
+    (tmp_path / "s.yaml").write_text(
+        "version: 1\nname: s\nmeshes:\n"
+        "  - {name: floor, source: {plane: [4, 4]}}\n"
+        "  - {name: t, source: {furniture: 'Scopia#table_wood_and_iron'}, transform: {translation: [0.5, 0, 0], rotation: [0, 0, 90]}}\n"
+    )
+    desc = load_scene(SceneRef(file=str(tmp_path / "s.yaml")), tmp_path, cache=cache)
+    parts = [m for m in desc.meshes if m.name.startswith("t/")]
+    v = np.concatenate([read_mesh(m.mesh_path).vertices for m in parts])
+    w, d, h = furniture.find("Scopia#table_wood_and_iron").size
+    assert np.ptp(v, axis=0) == pytest.approx((w, d, h), rel=0.01)
+    assert v[:, 2].min() == pytest.approx(0.0, abs=1e-5) and v[:, :2].mean(0) == pytest.approx((0, 0), abs=0.15)
+    assert any(np.allclose(m.matrix[:3, 3], (0.5, 0, 0)) for m in parts)
+    assert [c["asset"] for c in desc.credits] == ["furniture:Scopia#table_wood_and_iron"]
+    assert any(s.height == pytest.approx(0.503, abs=0.01) for s in desc.stages.values())  # its top
+
+
+def test_random_room_is_seed_locked_furnished_and_never_overlapping(cache):
+    a, credits_a = random_room(11, cache)
+    b, _ = random_room(11, cache)
+    c, _ = random_room(12, cache)
+    assert a.model_dump() == b.model_dump() and a.model_dump() != c.model_dump()
+    furn = [m for m in a.meshes if m.name.startswith("furniture_")]
+    assert len(furn) >= 5 and len(credits_a) == len(furn) + 2  # + floor and wall textures
+    floor = next(m for m in a.meshes if m.name == "floor")
+    W, D = floor.source.plane
+    boxes = []
+    for m in furn:
+        w, d, _ = furniture.find(m.source.furniture).size
+        yaw = m.transform.rotation[2]
+        if abs(abs(yaw) - 90) < 1:
+            w, d = d, w
+        x, y, _ = m.transform.translation
+        boxes.append((x - w / 2, y - d / 2, x + w / 2, y + d / 2))
+        assert -W / 2 - 1e-6 <= x - w / 2 and x + w / 2 <= W / 2 + 1e-6 and -D / 2 - 1e-6 <= y - d / 2 and y + d / 2 <= D / 2 + 1e-6
+    for i in range(len(boxes)):
+        for j in range(i):
+            p, q = boxes[i], boxes[j]
+            assert not (p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]), (i, j)
+
+
+def test_random_room_loads_with_stages_on_furniture(cache):
+    desc = load_scene("random_room", Path("."), cache=cache, variant=3, clearance=0.7)
+    assert len(desc.stages) >= 2 and any(s.height > 0.3 for s in desc.stages.values())
+    assert desc.world.kind in ("envmap", "color") and len(desc.lights) >= 2
+    assert any(m.material.texture for m in desc.meshes if m.name == "floor")
+    again = load_scene("random_room", Path("."), cache=cache, variant=3, clearance=0.7)
+    assert [(m.name, m.mesh_key, m.pose) for m in again.meshes] == [(m.name, m.mesh_key, m.pose) for m in desc.meshes]
+
+
+def test_random_room_without_textures_names_the_fix(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPECSYNTH_CACHE", str(tmp_path))
+    with pytest.raises(SceneError, match="run `make install`"):
+        load_scene("random_room", Path("."), cache=tmp_path, variant=1)
+
+
+# --------------------------------------------------------------------------- builds and attribution
+
+
+SPEC = """\
+version: 1
+name: rr
+seed: 5
+intrinsics: {width: 64, height: 48, fx: 57.0, fy: 57.0, cx: 32.0, cy: 24.0}
+objects: {builtin: [duck, mug, jenga]}
+scenes: [{name: random_room}]
+arrangements: {count: 3}
+cameras: {per_arrangement: 1, elevation: [30, 60], distance: [0.6, 1.2]}
+backend: {name: photo}
+outputs: {depth_scale: 0.25}
+"""
+
+
+def _build(spec: Path, out: Path):
+    from specsynth.build import build
+    from specsynth.compiler import compile_spec
+    from specsynth.yamlio import load_spec
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return build(compile_spec(load_spec(spec)), out, jobs=1)
+
+
+def test_random_room_build_has_a_room_per_arrangement_and_a_complete_attribution(tmp_path, cache):
+    spec = tmp_path / "rr.yaml"
+    spec.write_text(SPEC)
+    out = tmp_path / "out"
+    _build(spec, out)
+    from specsynth.records import ArrangementRecord
+    from specsynth.store import Store
+
+    store = Store(out)
+    arrs = [ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange")]
+    assert len({a.scene for a in arrs}) == 3 and all(a.scene.startswith("random_room#") for a in arrs)
+    listed = {c["asset"] for c in json.loads((out / "attribution.json").read_text())}
+    import pyarrow.parquet as pq
+
+    used = set(pq.read_table(out / "parquet" / "images.parquet", columns=["arr"]).column("arr").to_pylist())
+    for a in arrs:
+        if a.arr not in used:
+            continue
+        room, _ = random_room(a.scene_ref[1], cache)
+        want = {f"furniture:{m.source.furniture}" for m in room.meshes if m.name.startswith("furniture_")}
+        assert want <= listed, want - listed
+    assert {"object:duck", "object:mug", "object:jenga"} <= listed
+    md = (out / "ATTRIBUTION.md").read_text()
+    assert "CC-BY" in md or "CC0" in md
+    first = (out / "ATTRIBUTION.md").read_bytes()
+    _build(spec, out)  # a rebuild writes the same attribution
+    assert (out / "ATTRIBUTION.md").read_bytes() == first
+
+
+def test_attribution_is_written_even_without_third_party_assets(tmp_path):
+    from specsynth.writers.attribution import write_attribution
+
+    assert write_attribution(tmp_path, [], "d") == {"attribution_assets": 0}
+    assert "(none)" in (tmp_path / "ATTRIBUTION.md").read_text()
+    assert json.loads((tmp_path / "attribution.json").read_text()) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["cycles", "mitsuba"])
+def test_random_room_renders_in_both_backends(tmp_path, cache, backend):
+    spec = tmp_path / "rr.yaml"
+    opts = "{name: cycles, samples: 4, denoise: true}" if backend == "cycles" else "{name: mitsuba, samples: 4}"
+    spec.write_text(SPEC.replace("backend: {name: photo}", f"backend: {opts}").replace("count: 3", "count: 2"))
+    out = tmp_path / "out"
+    s = _build(spec, out)
+    assert s.images >= 1
+    from PIL import Image
+
+    for p in (out / "bop/train_pbr/000000/rgb").iterdir():
+        rgb = np.asarray(Image.open(p)).astype(float)
+        assert 10 < rgb.mean() < 245 and rgb.std() > 8  # a lit, textured room: not black, not blank
