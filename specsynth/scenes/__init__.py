@@ -411,8 +411,8 @@ def _load_mesh(m: SceneMesh, path: Path, cache: Path, what: str) -> list[tuple[s
     def yaml_material(mat: SceneMaterial, own: Path | None) -> MaterialIR:
         return _material_ir(mat, own, path, what)
 
-    return [(f"{m.name}/{name}", ply, mesh_key, filemeshes.part_material(m, mat, mname, yaml_material))
-            for name, mname, ply, mesh_key, mat in parts]
+    return [(f"{m.name}/{name}", ply, mesh_key, filemeshes.part_material(m, mat, mname, yaml_material, has_uv))
+            for name, mname, ply, mesh_key, mat, has_uv in parts]
 
 
 def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], clearance: float | None) -> dict[str, Stage]:

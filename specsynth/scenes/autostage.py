@@ -31,7 +31,7 @@ class AutoStageParams:
     clearance: float = 0.6  # metres of free space above a stage (drop height + object size)
     cell: float = 0.02  # metres, XY grid
     max_tilt_deg: float = 10.0
-    height_tol: float = 0.01  # metres: samples this close in height form one level
+    height_tol: float = 0.004  # metres: a level's samples span at most this (physics' 5 mm fall-through)
     margin: float = 0.03  # metres kept free along a stage's edges
     min_side: float = 0.2  # metres: narrower rectangles are not stages
     min_area: float = 0.06  # m^2: physics cannot keep a few objects on less (a chair's seat)
@@ -63,12 +63,18 @@ def sample_triangles(tris: np.ndarray, spacing: float) -> tuple[np.ndarray, np.n
 
 
 def height_levels(z: np.ndarray, tol: float, min_count: int) -> list[float]:
-    """Heights where upward samples cluster (gaps > tol split levels), each its samples' median."""
+    """Heights where upward samples cluster: sorted samples are cut into groups no more than
+    ``tol`` tall (a chain of near heights never merges two surfaces), each group's lowest height."""
     if len(z) == 0:
         return []
     zs = np.sort(z)
-    breaks = np.flatnonzero(np.diff(zs) > tol) + 1
-    return [float(np.median(g)) for g in np.split(zs, breaks) if len(g) >= min_count]
+    levels, start = [], 0
+    for i in range(1, len(zs) + 1):
+        if i == len(zs) or zs[i] - zs[start] > tol:
+            if i - start >= min_count:
+                levels.append(float(zs[start]))
+            start = i
+    return levels
 
 
 def _erode(mask: np.ndarray, r: int) -> np.ndarray:
@@ -122,18 +128,25 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
     min_cells = (params.min_side / cell) ** 2
     stages = []
     for level in height_levels(pts[up, 2], params.height_tol, int(min_cells)):
-        on = up & (np.abs(pts[:, 2] - level) <= params.height_tol)
+        on = up & (pts[:, 2] >= level) & (pts[:, 2] <= level + params.height_tol)
         above = (pts[:, 2] > level + params.height_tol) & (pts[:, 2] <= level + params.clearance)
         support = np.zeros(shape, bool)
         support[rows[on], cols[on]] = True
+        top = np.full(shape, -np.inf)  # highest support sample per cell: where objects land
+        np.maximum.at(top, (rows[on], cols[on]), pts[on, 2])
         blocked = np.zeros(shape, bool)
         blocked[rows[above], cols[above]] = True
         free = _erode(support & ~blocked, int(math.ceil(params.margin / cell)))
-        stages += _rectangles(free, level, lo, cell, params)
+        stages += _rectangles(free, top, lo, cell, params)
+    seen: dict[str, int] = {}
+    for i, st in enumerate(stages):  # two levels a hair apart could round to one name
+        seen[st.name] = seen.get(st.name, 0) + 1
+        if seen[st.name] > 1:
+            stages[i] = Stage(name=f"{st.name}_{seen[st.name]}", polygon=st.polygon, height=st.height)
     return stages
 
 
-def _rectangles(free: np.ndarray, level: float, lo: np.ndarray, cell: float, params: AutoStageParams) -> list[Stage]:
+def _rectangles(free: np.ndarray, top: np.ndarray, lo: np.ndarray, cell: float, params: AutoStageParams) -> list[Stage]:
     out = []
     min_cells = int(math.ceil(params.min_side / cell))
     free = free.copy()
@@ -147,6 +160,7 @@ def _rectangles(free: np.ndarray, level: float, lo: np.ndarray, cell: float, par
             break
         a, b, c, d = a + r0, b + c0, c + r0, d + c0
         free[a : c + 1, b : d + 1] = False
+        level = float(top[a : c + 1, b : d + 1].max())  # the surface's own height, not its level's
         x0, x1 = lo[0] + b * cell, lo[0] + (d + 1) * cell
         y0, y1 = lo[1] + a * cell, lo[1] + (c + 1) * cell
         poly = tuple((round(float(x), 6), round(float(y), 6)) for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1)))

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
@@ -23,7 +23,7 @@ from ..ir import MaterialIR
 from ..meshio import MeshData, atomic_write_bytes
 from .models import SceneMesh
 
-PARTS_VERSION = 2  # 2: every PBR map, alpha, UV transform, wrap
+PARTS_VERSION = 3  # 2: every PBR map, alpha, UV transform, wrap; 3: has_uv
 TEXTURE_FIELDS = ("texture", "roughness_texture", "metallic_texture", "normal_texture", "emission_texture",
                   "opacity_texture")
 TEXTURE_DIR = "textures"  # under <cache>/assets: embedded glTF textures by content hash
@@ -54,8 +54,8 @@ def _texture_path(ref: dict | None, src: Path, cache: Path) -> str | None:
 def convert_parts(
     m: SceneMesh, src: Path, key: str, cache: Path, finish: Callable[[MeshData], MeshData],
     prepare: Callable[[list], list] | None = None,
-) -> list[tuple[str, str, Path, str, MaterialIR]]:
-    """-> (part name, material name in the file, PLY path, mesh_key, file material) per part.
+) -> list[tuple[str, str, Path, str, MaterialIR, bool]]:
+    """-> (part name, material name in the file, PLY path, mesh_key, file material, has UVs) per part.
     ``prepare`` transforms the file's parts as a whole first (library furniture is sized on its
     overall bounding box), ``finish`` each part's mesh after."""
     sidecar = cache / "assets" / f"{key}.parts.json"
@@ -70,32 +70,40 @@ def convert_parts(
         parts = prepare(parts)
     rows = []
     for i, part in enumerate(parts):
-        ply, mesh_key = assets.store_mesh(finish(part.mesh), f"{key}.{i}", cache)
+        mesh = finish(part.mesh)
+        ply, mesh_key = assets.store_mesh(mesh, f"{key}.{i}", cache)
         mat = asdict(part.material)
         for k in TEXTURE_FIELDS:
             mat[k] = _texture_ref(mat[k], src, cache)
         rows.append({"name": part.name, "material_name": part.material_name, "ply": ply.name,
-                     "mesh_key": mesh_key, "material": mat})
+                     "mesh_key": mesh_key, "material": mat, "has_uv": mesh.uv is not None})
     atomic_write_bytes(sidecar, json.dumps({"v": PARTS_VERSION, "parts": rows}, sort_keys=True).encode())
     return [_from_meta(p, src, cache) for p in rows]
 
 
-def _from_meta(p: dict, src: Path, cache: Path) -> tuple[str, str, Path, str, MaterialIR]:
+def _from_meta(p: dict, src: Path, cache: Path) -> tuple[str, str, Path, str, MaterialIR, bool]:
     mat = dict(p["material"])
     for k in TEXTURE_FIELDS:
         mat[k] = _texture_path(mat[k], src, cache)
     for k in ("base_color", "emission", "uv_transform"):
         mat[k] = tuple(mat[k])
-    return p["name"], p["material_name"], cache / "assets" / p["ply"], p["mesh_key"], MaterialIR(**mat)
+    return p["name"], p["material_name"], cache / "assets" / p["ply"], p["mesh_key"], MaterialIR(**mat), p["has_uv"]
 
 
 def part_material(
-    m: SceneMesh, file_material: MaterialIR, material_name: str, yaml_material: Callable[..., MaterialIR]
+    m: SceneMesh, file_material: MaterialIR, material_name: str, yaml_material: Callable[..., MaterialIR],
+    has_uv: bool = True,
 ) -> MaterialIR:
-    """The material a part renders with (see the module docstring for the order)."""
+    """The material a part renders with (see the module docstring for the order). A texture given
+    to a part without UVs cannot be mapped: it is dropped, keeping the colour."""
     own = Path(file_material.texture) if file_material.texture else None
     if material_name in m.materials:
-        return yaml_material(m.materials[material_name], own)
-    if "material" in m.model_fields_set:
-        return yaml_material(m.material, own)
-    return file_material
+        chosen = yaml_material(m.materials[material_name], own)
+    elif "material" in m.model_fields_set:
+        chosen = yaml_material(m.material, own)
+    else:
+        return file_material
+    if chosen.textures and not has_uv:
+        return replace(chosen, texture=None, base_color=chosen.base_color if chosen.base_color != (1.0, 1.0, 1.0)
+                       else file_material.base_color)
+    return chosen

@@ -20,7 +20,7 @@ import numpy as np
 from ..library import furniture, textures
 from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed
 ROOM_KINDS = {
     "living_room": ("Living room",),
     "kitchen": ("Kitchen",),
@@ -28,6 +28,11 @@ ROOM_KINDS = {
     "bedroom": ("Bedroom",),
 }
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
+# Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
+PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
+          (0.95, 0.85, 0.5), (0.7, 0.7, 0.72), (0.85, 0.66, 0.8), (0.45, 0.6, 0.7))
+DYES = ((0.6, 0.12, 0.1), (0.1, 0.25, 0.55), (0.15, 0.4, 0.2), (0.55, 0.45, 0.1), (0.4, 0.15, 0.45),
+        (0.08, 0.35, 0.4), (0.5, 0.3, 0.2), (0.7, 0.55, 0.4))
 WALL = 0.1  # wall thickness, metres
 GAP = 0.06  # free space kept between pieces of furniture
 
@@ -125,6 +130,45 @@ def _walls(W: float, D: float, H: float, window, mat: SceneMaterial) -> list[Sce
     return out
 
 
+FABRIC_WORDS = ("fabric", "cloth", "sheet", "bed", "cushion", "couch", "sofa", "pillow", "blanket", "mattress",
+                "textile", "seat", "tela", "colchon", "cojin")
+WOOD_WORDS = ("wood", "table", "top", "desk", "shelf", "cabinet", "drawer", "madera", "worktop")
+
+
+def redress(rng, item: furniture.FurnitureItem, cache: Path, woods: list, felt) -> tuple[dict, list[dict]]:
+    """Domain randomisation of one piece: its plain (untextured) wood-like and fabric-like materials,
+    told apart by their names, get a wood texture or a dyed felt, each with probability one half.
+    -> (``materials:`` overrides by name, credits of the textures used)."""
+    from ..meshfiles import obj as obj_reader
+
+    overrides, credits = {}, []
+    mats = obj_reader.materials_of(furniture.extract(item, cache))
+    for name, (mat, _) in sorted(mats.items()):
+        low = name.lower()
+        if mat.map_kd or rng.random() < 0.5:
+            continue
+        if felt is not None and any(w in low for w in FABRIC_WORDS):
+            dye = DYES[int(rng.integers(len(DYES)))]
+            overrides[name] = SceneMaterial(texture=str(felt.path), base_color=dye, uv_scale=40.0, roughness=0.95, specular=0.2)
+            credits.append(felt.credit)
+        elif woods and any(w in low for w in WOOD_WORDS):
+            t = woods[int(rng.integers(len(woods)))]
+            overrides[name] = SceneMaterial(texture=str(t.path), uv_scale=1.0, roughness=float(rng.uniform(0.3, 0.6)))
+            credits.append(t.credit)
+    return overrides, credits
+
+
+def _rug(rng, W: float, D: float, cache: Path) -> list[SceneMesh]:
+    """Half the rooms get a dyed felt rug (a thin box: objects may land on it)."""
+    felt = [t for t in textures.available(cache) if t.kind == "fabric"]
+    if not felt or rng.random() < 0.5:
+        return []
+    w, d = float(rng.uniform(1.2, min(2.4, W - 1.0))), float(rng.uniform(0.9, min(1.8, D - 1.0)))
+    dye = DYES[int(rng.integers(len(DYES)))]
+    mat = SceneMaterial(texture=str(felt[0].path), base_color=dye, uv_scale=1.0 / felt[0].tile, roughness=0.95, specular=0.2)
+    return [_box("rug", (w, d, 0.01), (float(rng.uniform(-W / 4, W / 4)), float(rng.uniform(-D / 4, D / 4)), 0.005), mat)]
+
+
 def kelvin_rgb(kelvin: float) -> tuple[float, float, float]:
     """Approximate linear RGB of a black body (normalised so the brightest channel is 1); good
     enough for light colour jitter between 2700 K (warm bulbs) and 6500 K (daylight)."""
@@ -148,23 +192,30 @@ def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneF
     floor_path, floor_t = _tex(rng, textures.of_kind(cache, "floor"), "floor")
     wall_path, wall_t = _tex(rng, textures.of_kind(cache, "wall"), "wall")
     floor_mat = SceneMaterial(texture=floor_path, uv_scale=1.0 / floor_t.tile, roughness=float(rng.uniform(0.3, 0.7)))
-    wall_mat = SceneMaterial(texture=wall_path, uv_scale=1.0 / wall_t.tile, roughness=0.85, specular=0.3)
+    paint = PAINTS[int(rng.integers(len(PAINTS)))]
+    wall_mat = SceneMaterial(texture=wall_path, base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85, specular=0.3)
     meshes = [
         SceneMesh(name="floor", source={"plane": (W, D)}, material=floor_mat),
         _box("ceiling", (W + 2 * WALL, D + 2 * WALL, WALL), (0, 0, H + WALL / 2),
              SceneMaterial(base_color=(0.82, 0.82, 0.8), roughness=0.9), collide=False),
         *_walls(W, D, H, window, wall_mat),
     ]
+    meshes += _rug(rng, W, D, cache)
     items = _fits([i for i in furniture.catalogue() if i.category in ROOM_KINDS[kind]], W, D, H)
     placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(6, 11)), n_middle=int(rng.integers(1, 3)))
+    woods = [t for t in textures.available(cache) if t.kind == "floor" and "wood" in t.name]
+    felt = next((t for t in textures.available(cache) if t.kind == "fabric"), None)
+    dressed_credits = []
     for k, p in enumerate(placed):
-        meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id},
+        overrides, used = redress(rng, p.item, cache, woods, felt)
+        dressed_credits += used
+        meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id}, materials=overrides,
                                 transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
-    warm = kelvin_rgb(float(rng.uniform(2700, 4500)))
+    warm = kelvin_rgb(float(rng.uniform(3000, 6500)))
     lights = [
         LightDef(kind="area", power=float(rng.uniform(60, 180)), size=(min(1.2, W / 3), min(1.2, D / 3)),
                  color=warm, translation=(float(rng.uniform(-W / 6, W / 6)), float(rng.uniform(-D / 6, D / 6)), H - 0.02)),
-        LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 3500))),
+        LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
                               float(rng.uniform(1.6, H - 0.4)))),
     ]
@@ -172,5 +223,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneF
                   rotation=float(rng.uniform(0, 360)))
     sf = SceneFile(name=f"random_room_{kind}", description=f"random_room seed {seed}", meshes=meshes, lights=lights,
                    world=world)
-    credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed]
+    credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed] + dressed_credits
+    if any(m.name == "rug" for m in meshes):
+        credits.append(next(t for t in textures.available(cache) if t.kind == "fabric").credit)
     return sf, credits
