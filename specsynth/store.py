@@ -20,6 +20,21 @@ from .meshio import atomic_write_bytes
 RECORD = "record.json"
 
 
+class CorruptRecord(ValueError):
+    """A record that does not parse (a torn write, a full disk); the message names its path."""
+
+
+def _complete(record: Path) -> bool:
+    """Cheap check that a record was written whole: canonical JSON objects end with '}'. A torn
+    record (power loss, full disk) fails it and its job simply runs again."""
+    try:
+        with open(record, "rb") as f:
+            f.seek(-1, os.SEEK_END)
+            return f.read(1) == b"}"
+    except OSError:
+        return False
+
+
 class Store:
     def __init__(self, out: Path):
         self.root = Path(out) / ".specsynth" / "store"
@@ -29,17 +44,21 @@ class Store:
         return self.root / stage / key[:2] / key
 
     def has(self, stage: str, key: str) -> bool:
-        return (self.path(stage, key) / RECORD).is_file()
+        return _complete(self.path(stage, key) / RECORD)
 
     def load(self, stage: str, key: str) -> dict[str, Any]:
-        return json.loads((self.path(stage, key) / RECORD).read_bytes())
+        path = self.path(stage, key) / RECORD
+        try:
+            return json.loads(path.read_bytes())
+        except ValueError as e:
+            raise CorruptRecord(f"{path}: corrupt job record ({type(e).__name__}); delete it to re-run the job") from None
 
     def keys(self, stage: str) -> set[str]:
         """All finished keys of a stage, listed once (cheap cache checks for big plans)."""
         base = self.root / stage
         if not base.is_dir():
             return set()
-        return {p.name for d in base.iterdir() if d.is_dir() for p in d.iterdir() if (p / RECORD).is_file()}
+        return {p.name for d in base.iterdir() if d.is_dir() for p in d.iterdir() if _complete(p / RECORD)}
 
     def begin(self) -> Path:
         # The owner's pid in the name: a resumed build must not clean up after a worker of a
@@ -49,14 +68,19 @@ class Store:
         return d
 
     def commit(self, stage: str, key: str, workdir: Path, record: dict[str, Any]) -> Path:
-        (workdir / RECORD).write_bytes(canonical_json(record))
+        with open(workdir / RECORD, "wb") as f:  # on disk before the rename makes it count
+            f.write(canonical_json(record))
+            f.flush()
+            os.fsync(f.fileno())
         final = self.path(stage, key)
         final.parent.mkdir(parents=True, exist_ok=True)
+        if final.is_dir() and not _complete(final / RECORD):
+            shutil.rmtree(final)  # a torn earlier attempt of this very job: ours to replace
         try:
             os.rename(workdir, final)
         except OSError:
             # Another worker finished the same job first (same key, same content): keep theirs.
-            if not (final / RECORD).is_file():
+            if not _complete(final / RECORD):
                 raise
             shutil.rmtree(workdir, ignore_errors=True)
         return final

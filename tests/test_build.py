@@ -278,3 +278,23 @@ def test_workers_use_one_blas_thread_and_give_it_back(spec_file, tmp_path):
     finally:
         close_worker(str(tmp_path))
     assert blas() == before
+
+
+def test_a_torn_record_reruns_its_job_and_the_output_is_whole(spec_file, tmp_path):
+    """A record.json cut short (power loss, full disk) used to stop every later build with a bare
+    JSONDecodeError; now its job runs again and the dataset comes out as a clean build's."""
+    from specsynth.store import CorruptRecord, Store
+
+    clean, torn = tmp_path / "clean", tmp_path / "torn"
+    build(graph(spec_file), clean, jobs=1)
+    build(graph(spec_file), torn, jobs=1)
+    store = Store(torn)
+    for stage in ("arrange", "render"):
+        rec = store.path(stage, sorted(store.keys(stage))[0]) / "record.json"
+        rec.write_bytes(rec.read_bytes()[: len(rec.read_bytes()) // 2])
+        with pytest.raises(CorruptRecord, match=str(rec)):
+            store.load(stage, rec.parent.name)
+    again = build(graph(spec_file), torn, jobs=1)
+    assert again.stages["arrange"].ran == 1 and not again.failures
+    assert tree_digest(torn) == tree_digest(clean)
+    assert all(json.loads((store.path(s, k) / "record.json").read_bytes()) for s in ("arrange", "render") for k in store.keys(s))
