@@ -45,6 +45,19 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 EMPTY_BBOX = [-1, -1, -1, -1]
 
 
+def _look(forward, down) -> np.ndarray:
+    """World-to-camera rotation of an OpenCV camera (x right, y down, z forward)."""
+    z, y = np.asarray(forward, float), np.asarray(down, float)
+    return np.stack([np.cross(y, z), y, z])
+
+
+# The six 90-degree views of a cube map.
+_CUBE_FACES = tuple(_look(f, d) for f, d in (
+    ((1, 0, 0), (0, 0, -1)), ((-1, 0, 0), (0, 0, -1)), ((0, 1, 0), (0, 0, -1)),
+    ((0, -1, 0), (0, 0, -1)), ((0, 0, 1), (0, 1, 0)), ((0, 0, -1), (0, 1, 0)),
+))
+
+
 @dataclass
 class Annotation:
     instances: list[InstanceGT]  # gt order (RenderScene.objects()); poses in metres
@@ -336,6 +349,36 @@ class Annotator:
         if occluders == "objects":
             return self._object_nodes
         raise ValueError(f"occluders must be 'scene' or 'objects', not {occluders!r}")
+
+    # ------------------------------------------------------------------ free space
+
+    def free_distance(self, position, size: int = 16) -> float:
+        """Distance (m) from ``position`` to the nearest scene surface, seen along the six axis
+        directions (90-degree views of a cube map, ``size`` pixels a side, both faces of every
+        triangle drawn). Inside a closed wall, a cupboard or an object this is at most its
+        half-thickness; in a room, the distance to the nearest wall, floor or furniture."""
+        self._require_scene()
+        f = size / 2.0
+        K = np.array([[f, 0.0, (size - 1) / 2.0], [0.0, f, (size - 1) / 2.0], [0.0, 0.0, 1.0]])
+        rays = np.stack(np.meshgrid((np.arange(size) - (size - 1) / 2.0) / f, (np.arange(size) - (size - 1) / 2.0) / f), -1)
+        stretch = np.sqrt(1.0 + (rays ** 2).sum(-1))  # z-depth -> distance along the ray
+        p = np.asarray(position, dtype=np.float64)
+        nearest = np.inf
+        for R in _CUBE_FACES:
+            cam = CameraIR(K=tuple(map(tuple, K)), width=size, height=size, R_w2c=tuple(map(tuple, R)),
+                           t_w2c=tuple(-R @ p), near=0.001, far=100.0)
+            T = opencv_to_opengl_c2w(cam_to_world(R, -R @ p))
+            self._pscene.set_pose(self._camera_node, T)
+            self._camera.znear, self._camera.zfar = cam.near, cam.far
+            self._camera.K = K
+            self._renderer.viewport_width = self._renderer.viewport_height = size
+            z = np.asarray(self._renderer.render(self._pscene, self._flags,
+                                                 seg_node_map={n: (255, 255, 255) for n in self._nodes}), np.float64)
+            hit = z > 0
+            if hit.any():
+                nearest = min(nearest, float((z * stretch)[hit].min()))
+        self._factor_key = None  # the main camera is set anew by the next _set_camera
+        return nearest
 
     # ------------------------------------------------------------------ API
 

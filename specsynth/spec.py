@@ -212,6 +212,11 @@ class Cameras(Strict):
     distance: FloatRange(positive=True, hi_max=1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres.")
     inplane: FloatRange(-360, 360) = Field((0.0, 0.0), description="In-plane rotation about the optical axis, degrees.")
     max_tries: int = Field(10, ge=1, le=1000, description="Camera resamples before a view is dropped.")
+    clearance: float = Field(
+        0.05, ge=0, le=10,
+        description="Metres of free space a camera needs around it (nearest surface along the six axes); "
+        "a camera inside a wall, furniture or an object is resampled. 0 turns the check off.",
+    )
 
 
 

@@ -226,7 +226,7 @@ class Worker:
                 t0 = time.perf_counter()
                 vf = annot.visib_fract(self.camera(s.R_w2c, s.t_w2c, origin), focus.inst, spec.visibility.delta)
                 rec.tries += 1
-                if vf >= spec.visibility.threshold:
+                if vf >= spec.visibility.threshold and self._in_free_space(annot, s, origin):
                     rec.accepted = True
                     rec.focus_inst, rec.focus_visib_fract = focus.inst, float(vf)
                     rec.R_w2c, rec.t_w2c = np.asarray(s.R_w2c).tolist(), np.asarray(s.t_w2c).tolist()
@@ -237,6 +237,14 @@ class Worker:
             self.store.put("view", job.key, rec.to_json())
             out.append({"id": job.id, "accepted": rec.accepted, "tries": rec.tries, "rejected_seconds": rejected})
         return out
+
+    def _in_free_space(self, annot, s, origin: np.ndarray) -> bool:
+        """The camera stands in the open, ``cameras.clearance`` from every surface: not inside a
+        wall, a piece of furniture or an object (where a renderer shows the inside of it)."""
+        if self.spec.cameras.clearance <= 0:
+            return True
+        eye = -np.asarray(s.R_w2c, np.float64).T @ np.asarray(s.t_w2c, np.float64)  # world frame
+        return annot.free_distance(eye - origin) >= self.spec.cameras.clearance
 
     def run_renders(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
         from .writers.coco import write_visible_rles

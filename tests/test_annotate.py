@@ -318,3 +318,24 @@ def test_near_plane_crossing_and_canvas_overflow(annotator, tmp_path):
     assert huge.px_count_all == 9 * W * H and huge.bbox_obj == [-W, -H, 3 * W - 1, 3 * H - 1]
     assert ann.instances[0].px_count_all > ann.masks[0].sum() > 0  # the bar leaves the image
     assert ann.instances[2].px_count_all == 0
+
+
+def test_free_distance_finds_cameras_inside_walls_and_objects():
+    """room2's wall boxes are 10 cm thick: a camera in one is 5 cm from surfaces on two sides
+    (the old annotation engine culled those back faces and saw through the wall)."""
+    from pathlib import Path
+
+    from specsynth.annotate import Annotator
+    from specsynth.ir import RenderScene
+    from specsynth.scenes import load_scene
+
+    d = load_scene("room2", Path("."))
+    a = Annotator(32, 24)
+    try:
+        a.load(RenderScene(meshes=d.meshes, lights=d.lights, world=d.world))
+        assert a.free_distance((0.0, 2.55, 1.2)) == pytest.approx(0.05, abs=0.01)  # inside the north wall
+        assert a.free_distance((0.0, -2.55, 1.2)) == pytest.approx(0.05, abs=0.01)
+        assert a.free_distance((0.0, 0.0, 0.03)) == pytest.approx(0.03, abs=0.005)  # 3 cm over the floor
+        assert a.free_distance((0.0, 0.0, 1.3)) > 0.2  # in the room
+    finally:
+        a.close()
