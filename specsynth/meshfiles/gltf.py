@@ -25,7 +25,7 @@ import numpy as np
 from ..ir import IDENTITY_UV, MaterialIR
 from ..meshio import MeshData
 from . import bake
-from .part import MAX_TRIANGLES, Y_UP_TO_Z_UP, MeshFileError, Part, unique_names
+from .part import MAX_TRIANGLES, Y_UP_TO_Z_UP, MeshFileError, Part, concatenate, unique_names
 
 # Extensions a file may *require* that this reader renders correctly (or that change nothing here).
 SUPPORTED_REQUIRED = {"KHR_materials_emissive_strength", "KHR_mesh_quantization", "KHR_texture_transform"}
@@ -114,7 +114,7 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         raise MeshFileError(f"{path}: no triangles")
     names = list(by_material)
     return [
-        Part(name=unique, mesh=_concatenate(by_material[n]), material=materials[n], material_name=n)
+        Part(name=unique, mesh=concatenate(by_material[n]), material=materials[n], material_name=n)
         for n, unique in zip(names, unique_names(names))
     ]
 
@@ -137,22 +137,6 @@ def _mesh(geom, transform: np.ndarray, material: MaterialIR) -> MeshData:
     if not material.textures:
         uv = None
     return MeshData(vertices=v.astype(np.float32), faces=faces, normals=normals, uv=uv, colors=colors)
-
-
-def _concatenate(meshes: list[MeshData]) -> MeshData:
-    if len(meshes) == 1:
-        return meshes[0]
-    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
-
-    def cat(attr):
-        arrays = [getattr(m, attr) for m in meshes]
-        return None if any(a is None for a in arrays) else np.concatenate(arrays)
-
-    return MeshData(
-        vertices=np.concatenate([m.vertices for m in meshes]),
-        faces=np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]).astype(np.int32),
-        normals=cat("normals"), uv=cat("uv"), colors=cat("colors"),
-    )
 
 
 _WRAP = {10497: "repeat", 33071: "clamp", 33648: "mirror"}

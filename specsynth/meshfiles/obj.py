@@ -28,7 +28,7 @@ import numpy as np
 from ..ir import MaterialIR
 from ..meshio import MeshData
 from . import bake
-from .part import MAX_TRIANGLES, MeshFileError, Part, unique_names
+from .part import MAX_TRIANGLES, MeshFileError, Part, concatenate, unique_names
 
 _MAPS = {"map_Kd": "map_kd", "map_Pr": "map_pr", "map_Pm": "map_pm", "map_Bump": "map_bump", "bump": "map_bump",
          "norm": "map_bump", "map_Ke": "map_ke", "map_d": "map_d"}
@@ -225,14 +225,12 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         groups.setdefault(name, []).append(_mesh(geom, transform))
     if not groups:
         raise MeshFileError(f"{path}: no triangles")
-    from .gltf import _concatenate
-
     names = list(groups)
     parts = []
     for n, unique in zip(names, unique_names(names)):
         mat, lib = mats.get(n, (None, None))
         ir = material_ir(path, mat, lib, texture_cache)
-        mesh = _concatenate(groups[n])
+        mesh = concatenate(groups[n])
         if not ir.textures:
             mesh = MeshData(vertices=mesh.vertices, faces=mesh.faces, normals=mesh.normals)
         elif mesh.uv is None:

@@ -36,3 +36,20 @@ def unique_names(names: list[str]) -> list[str]:
         seen[n] = seen.get(n, 0) + 1
         out.append(n if seen[n] == 1 else f"{n}#{seen[n]}")
     return out
+
+
+def concatenate(meshes: list[MeshData]) -> MeshData:
+    """One mesh of several (attributes kept only when every mesh has them)."""
+    if len(meshes) == 1:
+        return meshes[0]
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+
+    def cat(attr):
+        arrays = [getattr(m, attr) for m in meshes]
+        return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    return MeshData(
+        vertices=np.concatenate([m.vertices for m in meshes]),
+        faces=np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]).astype(np.int32),
+        normals=cat("normals"), uv=cat("uv"), colors=cat("colors"),
+    )
