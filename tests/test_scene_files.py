@@ -394,9 +394,13 @@ def test_scene_parse_errors_never_echo_the_file(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("backend", ["cycles", "mitsuba"])
 def test_a_glb_given_directly_as_the_scene_builds(byo, tmp_path, backend):
+    """The example's room and table as one GLB (scene.glb): builds with found stages, lit by the
+    default HDRI, and both textures show."""
+    from PIL import Image
+
     from specsynth.cli import main
 
-    spec = (byo / "spec.yaml").read_text().replace("scenes: [{file: scene.yaml}]", "scenes: [{file: room.glb}]")
+    spec = (byo / "spec.yaml").read_text().replace("scenes: [{file: scene.yaml}]", "scenes: [{file: scene.glb}]")
     (byo / "spec_glb.yaml").write_text(spec)
     opts = "{name: cycles, samples: 4, denoise: true}" if backend == "cycles" else "{name: mitsuba, samples: 4}"
     with warnings.catch_warnings():
@@ -407,6 +411,14 @@ def test_a_glb_given_directly_as_the_scene_builds(byo, tmp_path, backend):
     gt = json.loads((tmp_path / "out/bop/train_pbr/000000/scene_gt_info.json").read_text())
     # Every accepted view sees its focused object at least 30 % (the visibility pre-check).
     assert len(gt) == 2 and all(max(g["visib_fract"] for g in im) >= 0.3 for im in gt.values())
+    desc = load_scene(SceneRef(file=str(byo / "scene.glb")), byo, cache=tmp_path / "c", clearance=0.7)
+    assert {round(s.height, 2) for s in desc.stages.values()} == {0.0, 0.13, 0.72}  # floor, board, table top
+    pixels = np.concatenate([np.asarray(Image.open(p).convert("RGB")).reshape(-1, 3)
+                             for p in sorted((tmp_path / "out/bop/train_pbr/000000/rgb").iterdir())]).astype(int)
+    r, g, b = pixels.T
+    assert ((b > r + 30) & (b > g + 10)).mean() > 0.01  # the checker's blue tiles
+    assert {p.material.texture is not None for p in meshfiles.read_parts(byo / "scene.glb", tmp_path / "t")
+            if p.material_name == "wood_top"} == {True}
 
 
 def test_a_gigantic_mesh_is_refused_before_rendering(tmp_path, monkeypatch):

@@ -10,6 +10,7 @@ Files (all generated here, nothing downloaded):
 - ``table.obj`` + ``table.mtl`` + ``wood.png``: a table whose top has ``map_Kd`` wood and whose
   legs are a dark metal (``Kd``, ``Pm``, ``Ns``);
 - ``scene.yaml``: both meshes, a ceiling light, a grey world, and no stages: specsynth finds them;
+- ``scene.glb``: the same room and table as one GLB, to give directly as ``scenes: [{file: scene.glb}]``;
 - ``spec.yaml``: six built-in objects dropped onto those stages.
 """
 
@@ -137,6 +138,30 @@ outputs: {depth_scale: 0.25}
 """
 
 
+def whole_scene_glb(folder: Path) -> bytes:
+    """The same scene as one GLB: the room's nodes plus the OBJ table (turned to glTF's +Y up and
+    moved where scene.yaml puts it), every material kept."""
+    import trimesh
+
+    scene = trimesh.load(folder / "room.glb", force="scene")
+    table = trimesh.load(folder / "table.obj", force="scene", group_material=True)
+    z_up_to_y_up = trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0))
+    place = trimesh.transformations.translation_matrix((0.3, 0.2, 0.0))  # as in scene.yaml, our +Z-up frame
+    from trimesh.visual.material import PBRMaterial
+
+    # As table.mtl says: wood_top has the wood texture, leg_metal is a dark rough metal.
+    for name, geom in table.geometry.items():
+        simple = geom.visual.material
+        is_top = getattr(simple, "image", None) is not None
+        geom.visual.material = PBRMaterial(
+            name="wood_top" if is_top else "leg_metal",
+            baseColorTexture=simple.image if is_top else None,
+            baseColorFactor=[1.0, 1.0, 1.0, 1.0] if is_top else [0.05, 0.05, 0.06, 1.0],
+            metallicFactor=0.0 if is_top else 1.0, roughnessFactor=0.55 if is_top else 0.35)
+        scene.add_geometry(geom, node_name=f"table_{name}", transform=z_up_to_y_up @ place)
+    return scene.export(file_type="glb")
+
+
 def write_all(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "room.glb").write_bytes(room_glb())
@@ -146,6 +171,7 @@ def write_all(folder: Path) -> None:
     buf = io.BytesIO()
     wood().save(buf, format="PNG")
     (folder / "wood.png").write_bytes(buf.getvalue())
+    (folder / "scene.glb").write_bytes(whole_scene_glb(folder))
     (folder / "scene.yaml").write_text(SCENE_YAML)
     (folder / "spec.yaml").write_text(SPEC_YAML)
 

@@ -94,8 +94,10 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as e:  # trimesh raises many types for broken files
         raise MeshFileError(f"{path}: cannot read glTF ({type(e).__name__})") from None
-    by_material: dict[str, list[MeshData]] = {}
-    materials: dict[str, MaterialIR] = {}
+    # Keyed by the material itself, not its name: exporters often leave several named "default".
+    by_material: dict[int, list[MeshData]] = {}
+    materials: dict[int, MaterialIR] = {}
+    names: dict[int, str] = {}
     triangles = 0
     for node in scene.graph.nodes_geometry:
         transform, geom_name = scene.graph[node]
@@ -106,17 +108,30 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         if triangles > MAX_TRIANGLES:
             raise MeshFileError(f"{path}: more than {MAX_TRIANGLES:,} triangles; decimate it first")
         mat = getattr(geom.visual, "material", None)
-        name = str(getattr(mat, "name", None) or "default")
-        if name not in materials:
-            materials[name] = _material(path, name, mat, material_json(doc, name), doc, texture_cache)
-        by_material.setdefault(name, []).append(_mesh(geom, transform, materials[name]))
+        key = id(mat)
+        if key not in materials:
+            names[key] = str(getattr(mat, "name", None) or "default")
+            materials[key] = _material(path, names[key], mat, material_json(doc, names[key]), doc, texture_cache)
+        by_material.setdefault(key, []).append(_mesh(geom, transform, materials[key]))
     if not by_material:
         raise MeshFileError(f"{path}: no triangles")
-    names = list(by_material)
-    return [
-        Part(name=unique, mesh=concatenate(by_material[n]), material=materials[n], material_name=n)
-        for n, unique in zip(names, unique_names(names))
-    ]
+    keys = list(by_material)
+    parts = []
+    for key, unique in zip(keys, unique_names([names[k] for k in keys])):
+        mesh, material = concatenate(by_material[key]), materials[key]
+        if material.textures and mesh.uv is None:
+            warnings.warn(f"{path}: material {names[key]!r} has textures but its primitives no UVs; using its colours",
+                          stacklevel=3)
+            material = untextured(material)
+        parts.append(Part(name=unique, mesh=mesh, material=material, material_name=names[key]))
+    return parts
+
+
+def untextured(m: MaterialIR) -> MaterialIR:
+    from dataclasses import replace
+
+    return replace(m, texture=None, roughness_texture=None, metallic_texture=None, normal_texture=None,
+                   emission_texture=None, opacity_texture=None, alpha_mode="opaque" if m.opacity_texture else m.alpha_mode)
 
 
 def _mesh(geom, transform: np.ndarray, material: MaterialIR) -> MeshData:
