@@ -174,6 +174,15 @@ def cmd_scenes(args) -> int:
         return 0
     if args.action == "show":
         return _show_scene(args)
+    if args.json:
+        rows = []
+        for name in builtin_scenes():
+            table = stage_table(name)
+            rows.append({"name": name, "procedural": not table,
+                         "stages": [{"name": st.name, "area_m2": round(a, 4), "height_m": round(h, 4)} for st, a, h in table],
+                         "assets": _scene_asset_count(name)})
+        print(json.dumps(rows, indent=1))
+        return 0
     t = Table(title="built-in scenes")
     for col in ("scene", "stage", "area m²", "height m"):
         t.add_column(col)
@@ -185,6 +194,20 @@ def cmd_scenes(args) -> int:
             t.add_row(name, stage.name, f"{area:.3f}", f"{height:.3f}")
     Console().print(t)
     return 0
+
+
+def _scene_asset_count(name: str) -> int:
+    """Meshes of a declared built-in scene; for a procedural one, the furniture models it draws from."""
+    from .scenes import procedural_name, read_scene_file
+    from .scenes import BUILTIN_DIR
+
+    if procedural_name(name):
+        from .library.furniture import catalogue
+        from .scenes.random_room import ROOM_KINDS
+
+        kinds = {c for cats in ROOM_KINDS.values() for c in cats}
+        return sum(1 for i in catalogue() if i.category in kinds)
+    return len(read_scene_file(BUILTIN_DIR / f"{name}.yaml").meshes)
 
 
 def _show_scene(args) -> int:
@@ -332,6 +355,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("scenes", help="list built-in scenes and their stages, preview one, or show a scene's stages")
     p.add_argument("action", nargs="?", choices=["list", "preview", "show"], default="list")
     p.add_argument("name", nargs="?", help="built-in scene name, or (show) a scene file")
+    p.add_argument("--json", action="store_true", help="list: name, stages, asset count as JSON")
     p.add_argument("--clearance", type=float, default=None,
                    help="show: free space (m) a found stage needs above it (default 0.6; builds use the "
                         "largest drop height + the largest object)")

@@ -214,3 +214,13 @@ def test_random_room_renders_in_both_backends(tmp_path, cache, backend):
     for p in (out / "bop/train_pbr/000000/rgb").iterdir():
         rgb = np.asarray(Image.open(p)).astype(float)
         assert 10 < rgb.mean() < 245 and rgb.std() > 8  # a lit, textured room: not black, not blank
+
+
+def test_scenes_json_lists_every_builtin_scene(capsys):
+    from specsynth.cli import main
+
+    assert main(["scenes", "--json"]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    assert {"room", "room2", "kiva", "random_room"} <= set(rows)
+    assert rows["random_room"]["procedural"] and rows["random_room"]["stages"] == [] and rows["random_room"]["assets"] > 200
+    assert rows["room"]["stages"] and rows["room"]["assets"] >= 10
