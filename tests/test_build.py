@@ -338,3 +338,22 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
         ann.close()
         worker.close()
     assert checked >= 6
+
+
+def test_outputs_are_copies_and_a_rebuild_restores_edited_ones(spec_file, tmp_path):
+    """Outputs used to be hard links into the store: editing one edited the cache, and a rebuild
+    did not repair it."""
+    from specsynth.store import Store
+
+    out = tmp_path / "out"
+    build(graph(spec_file), out, jobs=1)
+    clean = tree_digest(out)
+    rgb = sorted((out / "bop" / "train_pbr" / "000000" / "rgb").iterdir())[0]
+    mask = sorted((out / "bop" / "train_pbr" / "000000" / "mask_visib").iterdir())[0]
+    assert rgb.stat().st_nlink == 1  # not linked to the store
+    store_files = {p: p.read_bytes() for p in Store(out).root.rglob("*.png")}
+    rgb.write_bytes(b"edited by hand")
+    mask.unlink()
+    assert {p: p.read_bytes() for p in Store(out).root.rglob("*.png")} == store_files  # the cache is untouched
+    build(graph(spec_file), out, jobs=1)
+    assert tree_digest(out) == clean

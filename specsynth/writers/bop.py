@@ -3,7 +3,10 @@
 Units change here and only here: records are metres, BOP files are millimetres.
 
 Merge semantics, so that an interrupted or repeated merge is harmless:
-- every file lands by atomic rename (JSON and PLY via temp file, images via a temp hard link);
+- every file lands by atomic rename of a temp file next to it;
+- images are independent copies of the store's files (a reflink where the filesystem has them),
+  never hard links: editing an output must not edit the cache. A copy keeps its source's mtime,
+  so a rebuild finds an output that was edited or deleted (size or mtime differ) and restores it;
 - a file whose bytes are already right is left untouched (same inode, same mtime);
 - image files and chunk folders of images no longer in the build are removed, but only names this
   writer would produce, so anything a user put next to them survives.
@@ -11,13 +14,10 @@ Merge semantics, so that an interrupted or repeated merge is harmless:
 
 from __future__ import annotations
 
-import errno
-import filecmp
 import json
 import os
 import re
 import shutil
-import uuid
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -26,7 +26,7 @@ import numpy as np
 
 from ..assets import ObjectAsset
 from ..conventions import m_to_mm
-from ..meshio import MeshData, atomic_write_bytes, read_mesh
+from ..meshio import MeshData, atomic_write_bytes, new_temp_beside, read_mesh
 from ..records import ImageRecord
 from ..spec import Intrinsics, Metadata, Outputs
 
@@ -126,28 +126,39 @@ def write_if_changed(path: Path, data: bytes) -> bool:
 
 
 def place_file(src: Path, dst: Path) -> bool:
-    """Hard-link ``src`` to ``dst`` (copy across devices), atomically; False when already there."""
+    """Copy ``src`` to ``dst`` atomically, keeping its mtime; False when ``dst`` is already that
+    copy (same size and mtime: a later edit of ``dst`` changes them and is repaired here)."""
     src, dst = Path(src), Path(dst)
     if not src.is_file():
         raise FileNotFoundError(f"store file missing: {src}")
-    if dst.exists():
-        if os.path.samefile(src, dst) or filecmp.cmp(src, dst, shallow=False):
+    st = src.stat()
+    if dst.is_file() and not dst.is_symlink():
+        dt = dst.stat()
+        if dt.st_size == st.st_size and dt.st_mtime_ns == st.st_mtime_ns and dt.st_ino != st.st_ino:
             return False
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.parent / f".{dst.name}.{uuid.uuid4().hex}.tmp"
+    fd, tmp = new_temp_beside(dst)
     try:
-        try:
-            os.link(src, tmp)
-        except OSError as e:
-            if e.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
-                raise
-            shutil.copyfile(src, tmp)
+        with os.fdopen(fd, "wb") as out, open(src, "rb") as inp:
+            if not _reflink(inp.fileno(), out.fileno()):
+                shutil.copyfileobj(inp, out, 1 << 20)
+        os.utime(tmp, ns=(st.st_atime_ns, st.st_mtime_ns))
         os.replace(tmp, dst)
     except BaseException:
-        if tmp.exists():
-            tmp.unlink()
+        if os.path.exists(tmp):
+            os.unlink(tmp)
         raise
     return True
+
+
+def _reflink(src_fd: int, dst_fd: int) -> bool:
+    """Share the source's blocks copy-on-write (btrfs, XFS); False where unsupported (ext4)."""
+    import fcntl
+
+    try:
+        fcntl.ioctl(dst_fd, 0x40049409, src_fd)  # FICLONE
+        return True
+    except OSError:
+        return False
 
 
 def _remove_unexpected(folder: Path, pattern: re.Pattern, keep: set[str]) -> int:
