@@ -293,6 +293,10 @@ class MitsubaOptions(Strict):
         "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k.",
     )
     samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
+    denoise: bool = Field(
+        False, description="OpenImageDenoise (pyoidn, on the CPU) on the beauty pass, with albedo and normal AOVs "
+        "rendered in the same pass, as Cycles' denoise does.",
+    )
     match_cycles_bsdf: bool = Field(
         True,
         description="Calibrate Mitsuba's principled BSDF to Blender's per-bounce albedo (dielectrics), so the "

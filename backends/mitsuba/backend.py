@@ -21,6 +21,17 @@ from .textures import register_product_texture
 from .variant import choose_variant
 
 
+def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """OpenImageDenoise (HDR, guided by albedo and normals) on the CPU, as Cycles runs it."""
+    try:
+        import pyoidn
+    except ImportError as e:
+        raise RuntimeError("mitsuba: denoise needs pyoidn (pip install pyoidn; make install does)") from e
+    out = pyoidn.denoise(np.ascontiguousarray(linear, np.float32), np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
+                         np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True)
+    return np.ascontiguousarray(np.maximum(np.asarray(out, np.float32), 0.0))
+
+
 # Worst-case reprojection error (px) below which Mitsuba's square-pixel perspective sensor counts as
 # exact; above it the K sensor renders (JIT variants) or stats report fy_error_px (scalar_rgb).
 EXACT_PX = 1e-3
@@ -94,17 +105,23 @@ class MitsubaBackend:
         st = mapping.integrator_settings(quality, self.options.sampler, self.options.samples)
         sensor, sset = self._sensor_for(camera, st)
         self._set_pose(camera)
-        integrator = self._integrator(st.max_depth, st.rr_depth)
+        integrator = self._integrator(st.max_depth, st.rr_depth, aovs=self.options.denoise)
         t0 = time.perf_counter()
         # An opaque seed is a kernel input rather than a constant baked into it, so a new seed
         # does not trigger a recompilation in JIT variants.
         seed32 = mapping.fold_seed(seed)
         seed_arg = dr.opaque(mi.UInt32, seed32) if dr.is_jit_v(mi.Float) else seed32
-        img = mi.render(self._scene, sensor=sensor, integrator=integrator, seed=seed_arg, spp=st.spp)
-        linear = np.array(img, dtype=np.float32)[..., :3]
+        img = np.array(mi.render(self._scene, sensor=sensor, integrator=integrator, seed=seed_arg, spp=st.spp),
+                       dtype=np.float32)
+        linear = img[..., :3]
         seconds = time.perf_counter() - t0
         check_finite(linear, f"mitsuba render ({self.variant})")
         linear = np.ascontiguousarray(np.maximum(linear, 0.0))
+        denoise_seconds = None
+        if self.options.denoise:
+            t1 = time.perf_counter()
+            linear = denoise(linear, albedo=img[..., 3:6], normal=img[..., 6:9])
+            denoise_seconds = time.perf_counter() - t1
         stats = {
             "variant": self.variant,
             "spp": st.spp,
@@ -121,6 +138,8 @@ class MitsubaBackend:
             stats["fy_error_px"] = sset.fy_error_px
         if clamp is not None:
             stats["clamp_ignored"] = clamp
+        if denoise_seconds is not None:
+            stats["denoise_seconds"] = denoise_seconds
         return RenderResult(rgb=linear_to_srgb8(linear), linear=linear, stats=stats)
 
     def close(self) -> None:
@@ -140,12 +159,13 @@ class MitsubaBackend:
         except Exception:
             return False
 
-    def _integrator(self, max_depth: int, rr_depth: int):
-        key = (max_depth, rr_depth)
+    def _integrator(self, max_depth: int, rr_depth: int, aovs: bool = False):
+        key = (max_depth, rr_depth, aovs)
         if key not in self._integrators:
-            self._integrators[key] = self._mi.load_dict(
-                {"type": "path", "max_depth": max_depth, "rr_depth": rr_depth, "hide_emitters": False}
-            )
+            path = {"type": "path", "max_depth": max_depth, "rr_depth": rr_depth, "hide_emitters": False}
+            if aovs:  # the denoiser's guides, from the same camera rays: channels 3-5 and 6-8
+                path = {"type": "aov", "aovs": "albedo:albedo,nn:sh_normal", "integrator": path}
+            self._integrators[key] = self._mi.load_dict(path)
         return self._integrators[key]
 
     def _use_k_sensor(self, sset: mapping.SensorSettings) -> bool:
