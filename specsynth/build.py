@@ -39,6 +39,25 @@ class BuildLocked(RuntimeError):
     pass
 
 
+class UnsafeOutput(RuntimeError):
+    """A symbolic link inside --out would make the build write or delete outside it."""
+
+
+def refuse_links_out(out: Path) -> None:
+    """Every folder and file a build writes or deletes lives under ``out``: a symbolic link in
+    there pointing elsewhere (``out/bop -> /data``) would carry writes and deletes out of it, so
+    the build stops and names it instead. Links that stay inside ``out`` are harmless."""
+    root = out.resolve()
+    for top, dirs, files in os.walk(out, followlinks=False):
+        for name in dirs + files:
+            p = Path(top) / name
+            if p.is_symlink():
+                target = p.resolve()
+                if target != root and root not in target.parents:
+                    raise UnsafeOutput(f"{p}: a symbolic link out of the output folder (to {target}); "
+                                       "remove it or give another --out")
+
+
 @contextmanager
 def output_lock(out: Path) -> Iterator[None]:
     """Refuse a second concurrent build into the same folder instead of interleaving them."""
@@ -264,6 +283,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     t_build = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    refuse_links_out(out)
     summary = BuildSummary(out=str(out), backend=graph.backend)
     with output_lock(out):
         store = Store(out)

@@ -419,13 +419,13 @@ def main(argv: list[str] | None = None) -> int:
             raise
         from .assets import AssetError
         from .backend_api import PluginNotFound
-        from .build import BuildLocked
+        from .build import BuildLocked, UnsafeOutput
         from .library.furniture import LibraryError
         from .store import CorruptRecord
         from .writers.yolo import ExportError
 
         if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError, LibraryError,
-                          CorruptRecord)):
+                          CorruptRecord, UnsafeOutput)):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)

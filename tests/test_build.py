@@ -357,3 +357,29 @@ def test_outputs_are_copies_and_a_rebuild_restores_edited_ones(spec_file, tmp_pa
     assert {p: p.read_bytes() for p in Store(out).root.rglob("*.png")} == store_files  # the cache is untouched
     build(graph(spec_file), out, jobs=1)
     assert tree_digest(out) == clean
+
+
+@pytest.mark.parametrize("link", ["bop", ".specsynth", "bop/train_pbr/000000/rgb", "coco/train_pbr.json"])
+def test_a_link_out_of_the_output_folder_is_refused_and_nothing_outside_changes(spec_file, tmp_path, link):
+    from specsynth.build import UnsafeOutput
+    from specsynth.cli import main
+
+    out = tmp_path / "out"
+    build(graph(spec_file), out, jobs=1)
+    outside = tmp_path / "precious"
+    outside.mkdir()
+    (outside / "000000.png").write_bytes(b"keep me")
+    (outside / "keep.txt").write_text("keep me")
+    target = out / link
+    if target.is_dir():
+        import shutil
+
+        shutil.rmtree(target)
+    else:
+        target.unlink()
+    target.symlink_to(outside if not link.endswith(".json") else outside / "keep.txt")
+    before = {p.name: p.read_bytes() for p in outside.iterdir()}
+    with pytest.raises(UnsafeOutput, match="symbolic link out of the output folder"):
+        build(graph(spec_file), out, jobs=1)
+    assert main(["build", str(spec_file), "--out", str(out), "--quiet"]) == 2
+    assert {p.name: p.read_bytes() for p in outside.iterdir()} == before
