@@ -126,18 +126,33 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
     cols = np.clip(((pts[:, 0] - lo[0]) / cell).astype(np.int64), 0, shape[1] - 1)
     up = normals[:, 2] >= math.cos(math.radians(params.max_tilt_deg))
     min_cells = (params.min_side / cell) ** 2
+    # Every slab test below is a slice of the samples sorted by height (one sort, not a pass over
+    # all samples per level), and every level works only inside its own support's bounding box.
+    order = np.argsort(pts[:, 2], kind="stable")
+    z_all, r_all, c_all = pts[order, 2], rows[order], cols[order]
+    order_up = np.argsort(pts[up, 2], kind="stable")
+    z_up, r_up, c_up = pts[up, 2][order_up], rows[up][order_up], cols[up][order_up]
     stages = []
-    for level in height_levels(pts[up, 2], params.height_tol, int(min_cells)):
-        on = up & (pts[:, 2] >= level) & (pts[:, 2] <= level + params.height_tol)
-        above = (pts[:, 2] > level + params.height_tol) & (pts[:, 2] <= level + params.clearance)
-        support = np.zeros(shape, bool)
-        support[rows[on], cols[on]] = True
-        top = np.full(shape, -np.inf)  # highest support sample per cell: where objects land
-        np.maximum.at(top, (rows[on], cols[on]), pts[on, 2])
-        blocked = np.zeros(shape, bool)
-        blocked[rows[above], cols[above]] = True
+    for level in height_levels(z_up, params.height_tol, int(min_cells)):
+        a = np.searchsorted(z_up, level, side="left")
+        b = np.searchsorted(z_up, level + params.height_tol, side="right")
+        r_on, c_on, z_on = r_up[a:b], c_up[a:b], z_up[a:b]
+        pad = int(math.ceil(params.margin / cell)) + 1
+        r0, r1 = max(int(r_on.min()) - pad, 0), min(int(r_on.max()) + pad + 1, shape[0])
+        c0, c1 = max(int(c_on.min()) - pad, 0), min(int(c_on.max()) + pad + 1, shape[1])
+        box = (r1 - r0, c1 - c0)
+        support = np.zeros(box, bool)
+        support[r_on - r0, c_on - c0] = True
+        top = np.full(box, -np.inf)  # highest support sample per cell: where objects land
+        np.maximum.at(top, (r_on - r0, c_on - c0), z_on)
+        lo_a, hi_a = np.searchsorted(z_all, [level + params.height_tol, level + params.clearance], side="right")
+        r_ab, c_ab = r_all[lo_a:hi_a], c_all[lo_a:hi_a]
+        inside = (r_ab >= r0) & (r_ab < r1) & (c_ab >= c0) & (c_ab < c1)
+        blocked = np.zeros(box, bool)
+        blocked[r_ab[inside] - r0, c_ab[inside] - c0] = True
         free = _erode(support & ~blocked, int(math.ceil(params.margin / cell)))
-        stages += _rectangles(free, top, lo, cell, params)
+        origin = lo + np.array([c0 * cell, r0 * cell, 0.0])
+        stages += _rectangles(free, top, origin, cell, params)
     seen: dict[str, int] = {}
     for i, st in enumerate(stages):  # two levels a hair apart could round to one name
         seen[st.name] = seen.get(st.name, 0) + 1
