@@ -28,6 +28,24 @@ SPEC_VERSION = 1
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_numbers(cls, value, info):
+        """YAML's ``true`` is not a count: pydantic would read ``per_arrangement: true`` as 1."""
+        if isinstance(value, bool) and _numeric(cls.model_fields[info.field_name].annotation):
+            raise ValueError(f"expected a number, got {str(value).lower()}")
+        return value
+
+
+def _numeric(annotation) -> bool:
+    """Whether a field takes numbers and not booleans (int, float, optional or in a union)."""
+    import typing
+
+    if annotation in (int, float):
+        return True
+    args = typing.get_args(annotation)
+    return bool(args) and bool not in args and any(a in (int, float) for a in args)
+
 
 def _range(lo_min: float | None = None, hi_max: float | None = None, positive: bool = False):
     """Validator for a ``[min, max]`` pair: finite, ordered, within optional bounds."""
@@ -209,7 +227,7 @@ class Cameras(Strict):
     per_arrangement: int = Field(5, ge=1, le=100_000, description="Cameras per arrangement.")
     azimuth: FloatRange(-720, 720) = Field((0.0, 360.0), description="Azimuth around the focused object, degrees.")
     elevation: FloatRange(-90, 90) = Field((10.0, 80.0), description="Elevation above the stage plane, degrees.")
-    distance: FloatRange(positive=True, hi_max=1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres.")
+    distance: FloatRange(0.02, 1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres (at least 2 cm: nearer is inside the object).")
     inplane: FloatRange(-360, 360) = Field((0.0, 0.0), description="In-plane rotation about the optical axis, degrees.")
     max_tries: int = Field(10, ge=1, le=1000, description="Camera resamples before a view is dropped.")
     clearance: float = Field(
@@ -370,8 +388,8 @@ class Outputs(Strict):
     @field_validator("depth_scale")
     @classmethod
     def _ds(cls, v):
-        if v != "auto" and not (v > 0):
-            raise ValueError("depth_scale must be > 0 or 'auto'")
+        if v != "auto" and not (0 < v <= 1000):
+            raise ValueError("depth_scale must be in (0, 1000] mm per unit, or 'auto'")
         return v
 
 
@@ -411,9 +429,9 @@ class DatasetSpec(Strict):
     """A synthetic dataset: objects dropped with physics onto stages of scenes, seen by cameras."""
 
     version: Literal[1] = Field(SPEC_VERSION, description="Spec language version.")
-    name: str = Field(pattern=r"^[A-Za-z0-9_.\-]+$", description="Dataset name.")
+    name: str = Field(pattern=r"^[A-Za-z0-9_.\-]+$", max_length=128, description="Dataset name.")
     seed: int = Field(0, ge=0, lt=2**63, description="Root seed; every job seed derives from it.")
-    split: str = Field("train_pbr", pattern=r"^[A-Za-z0-9_\-]+$", description="BOP split name.")
+    split: str = Field("train_pbr", pattern=r"^[A-Za-z0-9_\-]+$", max_length=64, description="BOP split name.")
     intrinsics: Intrinsics = Intrinsics()
     objects: Objects
     scenes: list[SceneRef] = Field(min_length=1)

@@ -32,7 +32,7 @@ CASES = [
     ("nan-threshold", BASE + "visibility:\n  threshold: .nan\n", 9, "visibility.threshold", "finite"),
     ("inf-distance", BASE + "cameras:\n  distance: [0.5, .inf]\n", 9, "cameras.distance", "finite"),
     ("reversed-range", BASE + "cameras:\n  distance: [2.0, 1.0]\n", 9, "cameras.distance", "min (2.0) must be <= max (1.0)"),
-    ("zero-distance", BASE + "cameras:\n  distance: [0, 1.0]\n", 9, "cameras.distance", "must be > 0"),
+    ("zero-distance", BASE + "cameras:\n  distance: [0, 1.0]\n", 9, "cameras.distance", ">= 0.02"),
     ("elevation-out-of-range", BASE + "cameras:\n  elevation: [10, 95]\n", 9, "cameras.elevation", "<= 90"),
     ("range-wrong-length", BASE + "cameras:\n  azimuth: [0, 90, 180]\n", 9, "cameras.azimuth", "at most 2"),
     ("threshold-above-one", BASE + "visibility:\n  threshold: 1.5\n", 9, "visibility.threshold", "less than or equal to 1"),
@@ -52,6 +52,11 @@ CASES = [
     ("arrangements-zero", BASE + "arrangements:\n  count: 0\n", 9, "arrangements.count", "greater than or equal to 1"),
     ("mesh-without-unit", BASE.replace("  builtin: [duck]\n", "  meshes:\n    - path: a.ply\n"), 4, "objects.meshes.0.unit", "Field required"),
     ("version-2", BASE + "version: 2\n", 8, "version", "1"),
+    ("bool-as-count", BASE + "cameras:\n  per_arrangement: true\n", 9, "cameras.per_arrangement", "expected a number, got true"),
+    ("bool-as-seed", BASE + "seed: false\n", 8, "seed", "expected a number, got false"),
+    ("split-too-long", BASE + "split: " + "a" * 300 + "\n", 8, "split", "at most 64"),
+    ("distance-inside-object", BASE + "cameras:\n  distance: [0.000001, 1.0]\n", 9, "cameras.distance", ">= 0.02"),
+    ("depth-scale-absurd", BASE + "outputs:\n  depth_scale: 1.0e+300\n", 9, "outputs.depth_scale", "(0, 1000]"),
     ("photo-lights-reversed", BASE.replace("  name: photo\n", "  name: photo\n  lights: [3, 1]\n"), 8, "backend.lights", "min (3) must be <= max (1)"),
 ]
 
