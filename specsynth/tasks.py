@@ -316,6 +316,28 @@ class Worker:
 _workers: dict[str, Worker] = {}
 
 
+def die_with_parent(parent: int) -> None:
+    """Ask Linux to kill this process when ``parent``, the build that started it, dies
+    (PR_SET_PDEATHSIG): a build killed with SIGKILL otherwise leaves its pool workers rendering
+    for minutes."""
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return  # not Linux: workers then exit when their task pipe closes
+    if os.getppid() != parent:  # the build died while this worker started: nobody will signal it
+        os._exit(1)
+
+
+def init_pool_worker(ctx: BuildContext, parent: int) -> None:
+    """Initializer of the local pool's worker processes."""
+    die_with_parent(parent)
+    init_worker(ctx)
+
+
 def init_worker(ctx: BuildContext) -> None:
     # Renderers must not oversubscribe the cores the pool already splits between workers: OpenMP
     # (Blender, OIDN) and Mesa's llvmpipe (annotation engine, photo backend) read these before

@@ -233,3 +233,43 @@ def test_slurm_example_job_script():
     assert f"export DASK_CONFIG={CONFIG_DIR}" in script
     assert "--nworkers 16" in script and "--nthreads 1" in script and "#SBATCH --exclusive" in script
     assert "#SBATCH -n 1" in script and "#SBATCH --cpus-per-task=16" in script
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out |= {int(c) for c in (task / "children").read_text().split()}
+        except OSError:
+            pass
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def test_pool_workers_exit_when_the_build_is_killed(spec_file, tmp_path):
+    """kill -9 of the build process (only it, not its group) used to leave its workers running
+    for minutes; they now die with it (PR_SET_PDEATHSIG)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "specsynth.cli", "build", str(spec_file), "--out", str(tmp_path / "o"), "--jobs", "2",
+         "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 120
+    workers: set[int] = set()
+    while time.time() < deadline and proc.poll() is None and len(workers) < 2:
+        workers = {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text(errors="replace")} \
+            if Path(f"/proc/{proc.pid}").exists() else set()
+        time.sleep(0.05)
+    if proc.poll() is not None or len(workers) < 2:
+        pytest.skip("the build ended before its workers could be seen")
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    deadline = time.time() + 20  # a worker still importing its renderer dies when it gets to its initializer
+    while time.time() < deadline and any(_alive(w) for w in workers):
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers)

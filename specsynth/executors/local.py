@@ -7,6 +7,7 @@ depend on the number of workers: every job's output is a function of its inputs 
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
@@ -28,8 +29,8 @@ class LocalExecutor:
         return ProcessPoolExecutor(
             max_workers=self.workers,
             mp_context=mp.get_context("spawn"),
-            initializer=tasks.init_worker,
-            initargs=(self._ctx,),
+            initializer=tasks.init_pool_worker,
+            initargs=(self._ctx, os.getpid()),
         )
 
     def submit(self, fn, *args) -> Future:
