@@ -247,16 +247,38 @@ def _message(err: dict) -> str:
     return msg
 
 
+MAX_SPEC_BYTES = 4 << 20  # a spec is a page of YAML; 4 MiB is far past any real one
+
+
+def _read_spec_text(p: Path) -> str:
+    """The spec's text, read only from a regular file of bounded size (``/dev/zero`` or a 50 MB
+    list would otherwise hang or fill memory before any error)."""
+    st = p.stat()
+    import stat
+
+    if not stat.S_ISREG(st.st_mode):
+        raise OSError(0, "not a regular file")
+    if st.st_size > MAX_SPEC_BYTES:
+        raise OSError(0, f"{st.st_size:,} bytes, over the {MAX_SPEC_BYTES:,}-byte limit for a spec")
+    with open(p, "rb") as f:
+        data = f.read(MAX_SPEC_BYTES + 1)
+    if len(data) > MAX_SPEC_BYTES:
+        raise OSError(0, f"over the {MAX_SPEC_BYTES:,}-byte limit for a spec")
+    return data.decode("utf-8")
+
+
 def load_spec(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> LoadedSpec:
     """Read, parse and validate a spec file; raises SpecError with every problem located."""
     p = Path(path)
     file = str(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = _read_spec_text(p)
     except FileNotFoundError:
         raise SpecError([Problem(file, None, None, "", "no such file")]) from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise SpecError([Problem(file, None, None, "", f"cannot read: {e}")]) from None
+    except UnicodeDecodeError as e:
+        raise SpecError([Problem(file, None, None, "", f"not UTF-8 text (byte {e.start})")]) from None
+    except OSError as e:
+        raise SpecError([Problem(file, None, None, "", f"cannot read: {e.strerror or type(e).__name__}")]) from None
     if not text.strip():
         raise SpecError([Problem(file, 1, 1, "", "spec is empty: expected a mapping with 'name', 'objects', 'scenes', 'backend'")])
     data, positions = parse_yaml(text, file)

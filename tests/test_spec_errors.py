@@ -165,3 +165,13 @@ def test_union_errors_name_the_field_once(tmp_path):
 def test_error_on_the_parent_of_an_override_points_at_the_override(tmp_path):
     _, problems = _problems(tmp_path, BASE + "cameras:\n  distance: [0.5, 1.0]\n", ["cameras.distance.0=2.0"])
     assert problems[0].file == "--set cameras.distance.0" and problems[0].path == "cameras.distance"
+
+
+def test_validate_refuses_devices_and_huge_files_quickly(tmp_path):
+    """`specsynth validate /dev/zero` read forever; a 50 MB list filled memory first."""
+    big = tmp_path / "big.yaml"
+    big.write_bytes(b"name: t\nobjects: [" + b"1, " * (5 << 20) + b"]\n")
+    for path, message in (("/dev/zero", "not a regular file"), (str(big), "byte limit for a spec")):
+        with pytest.raises(SpecError) as e:  # (before the fix, /dev/zero never returned)
+            load_spec(path)
+        assert message in str(e.value.problems[0])
