@@ -409,6 +409,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         summary.instances = sum(len(im.instances) for im, _ in images)
         _account_savings(summary, images, cached_render)
         from .assets import resolve_objects
+        from .verify import write_index
         from .writers import write_outputs
         from .writers.attribution import write_attribution
 
@@ -416,9 +417,10 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         write_outputs(out, graph.spec, images, models)
         write_attribution(out, credits, graph.spec.name)
         write_manifest(graph, out, arr_jobs)
+        write_json(out / "failures.json", summary.failures)
+        write_index(out)  # last: every output file is in place
         summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
         summary.wall_seconds = time.perf_counter() - t_build
-        write_json(out / "failures.json", summary.failures)
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary
 

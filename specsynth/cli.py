@@ -145,6 +145,12 @@ def cmd_diff(args) -> int:
         return manifest_of(graph)
 
     d = diff(side(args.a), side(args.b))
+    if Path(args.a).is_dir() and Path(args.b).is_dir():
+        from .verify import compare
+
+        d["files"] = files = compare(Path(args.a), Path(args.b))
+        edited = any(files[s][k] for s in ("a_since_built", "b_since_built") for k in ("changed", "missing"))
+        d["identical"] = d["identical"] and not (files["only_in_a"] or files["only_in_b"] or files["differ"] or edited)
     if args.json:
         print(json.dumps(d, indent=2, sort_keys=True))
         return 0
@@ -155,6 +161,15 @@ def cmd_diff(args) -> int:
         r = d[s]
         t.add_row(s, str(r["added"]), str(r["removed"]), str(r["modified"]), str(r["unchanged"]), ", ".join(r["causes"]))
     Console().print(t)
+    files = d.get("files")
+    if files:
+        Console().print(f"files: {len(files['differ'])} differ, {len(files['only_in_a'])} only in {args.a}, "
+                        f"{len(files['only_in_b'])} only in {args.b}")
+        for side_name, key in ((args.a, "a_since_built"), (args.b, "b_since_built")):
+            v = files[key]
+            for what in ("changed", "missing"):
+                for rel in v[what][:10]:
+                    Console().print(f"  {side_name}: {rel} {what} since its build")
     Console().print("no change" if d["identical"] else "datasets differ")
     return 0
 

@@ -383,3 +383,23 @@ def test_a_link_out_of_the_output_folder_is_refused_and_nothing_outside_changes(
         build(graph(spec_file), out, jobs=1)
     assert main(["build", str(spec_file), "--out", str(out), "--quiet"]) == 2
     assert {p.name: p.read_bytes() for p in outside.iterdir()} == before
+
+
+def test_diff_verifies_files_against_what_each_build_recorded(spec_file, tmp_path, capsys):
+    """`specsynth diff A B` compared manifests only: an output edited or deleted after its build
+    went unnoticed."""
+    from specsynth.cli import main
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    build(graph(spec_file), a, jobs=1)
+    build(graph(spec_file), b, jobs=1)
+    assert main(["diff", str(a), str(b)]) == 0 and "no change" in capsys.readouterr().out
+    rgb = sorted((b / "bop" / "train_pbr" / "000000" / "rgb").iterdir())[0]
+    rgb.write_bytes(rgb.read_bytes()[:-10] + b"0123456789")  # same size, other bytes
+    (a / "coco" / "train_pbr.json").unlink()
+    assert main(["diff", str(a), str(b), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    rel = rgb.relative_to(b).as_posix()
+    assert not d["identical"]
+    assert d["files"]["b_since_built"]["changed"] == [rel] and d["files"]["a_since_built"]["missing"] == ["coco/train_pbr.json"]
+    assert d["files"]["differ"] == [] and d["files"]["recorded"]  # the records themselves agree
