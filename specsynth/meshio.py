@@ -7,7 +7,9 @@ the layout is exact and stable (its bytes feed content hashes), read back with n
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,10 +105,22 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError) and e.errno == errno.ENOSPC:
+            raise disk_full(Path(path), len(data)) from None
         raise
+
+
+def disk_full(path: Path, needed: int) -> OSError:
+    """ENOSPC with what the bare error lacks: which file, how much was needed, how much is free."""
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        free = -1
+    return OSError(errno.ENOSPC, f"no space left on the device of {path}: writing {needed:,} bytes, "
+                                 f"{free:,} bytes free; free some space and run the build again (finished jobs are kept)")
 
 
 def write_mesh(path: Path, mesh: MeshData, comments: tuple[str, ...] = ()) -> None:

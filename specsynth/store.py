@@ -7,6 +7,7 @@ record, so a build killed at any moment never exposes half-written results.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -15,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from .keys import canonical_json
-from .meshio import atomic_write_bytes
+from .meshio import atomic_write_bytes, disk_full
 
 RECORD = "record.json"
 
@@ -68,10 +69,16 @@ class Store:
         return d
 
     def commit(self, stage: str, key: str, workdir: Path, record: dict[str, Any]) -> Path:
-        with open(workdir / RECORD, "wb") as f:  # on disk before the rename makes it count
-            f.write(canonical_json(record))
-            f.flush()
-            os.fsync(f.fileno())
+        data = canonical_json(record)
+        try:
+            with open(workdir / RECORD, "wb") as f:  # on disk before the rename makes it count
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:
+            if e.errno == errno.ENOSPC:
+                raise disk_full(workdir / RECORD, len(data)) from None
+            raise
         final = self.path(stage, key)
         final.parent.mkdir(parents=True, exist_ok=True)
         if final.is_dir() and not _complete(final / RECORD):

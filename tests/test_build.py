@@ -403,3 +403,44 @@ def test_diff_verifies_files_against_what_each_build_recorded(spec_file, tmp_pat
     assert not d["identical"]
     assert d["files"]["b_since_built"]["changed"] == [rel] and d["files"]["a_since_built"]["missing"] == ["coco/train_pbr.json"]
     assert d["files"]["differ"] == [] and d["files"]["recorded"]  # the records themselves agree
+
+
+def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path, monkeypatch):
+    """ENOSPC used to surface as a bare `[Errno 28]`: now it names the file, the bytes needed and
+    free, nothing finished is lost, and the next build completes the dataset as a clean one."""
+    import errno
+
+    from specsynth import meshio
+
+    clean, out = tmp_path / "clean", tmp_path / "out"
+    build(graph(spec_file), clean, jobs=1)
+    build(graph(spec_file), out, jobs=1, until="view")  # arrangements and cameras are done
+    done = sorted(Store_keys(out, "arrange"))
+    real = meshio.os.fdopen
+
+    class Full:
+        def __init__(self, f):
+            self.f = f
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(meshio.os, "fdopen", lambda fd, mode="r": Full(real(fd, mode)))
+    with pytest.raises(OSError, match=r"no space left on the device of .*: writing [\d,]+ bytes, [\d,]+ bytes free"):
+        build(graph(spec_file), out, jobs=1)
+    assert sorted(Store_keys(out, "arrange")) == done  # nothing finished was lost
+    monkeypatch.setattr(meshio.os, "fdopen", real)
+    again = build(graph(spec_file), out, jobs=1)
+    assert not again.failures and tree_digest(out) == tree_digest(clean)
+
+
+def Store_keys(out, stage):
+    from specsynth.store import Store
+
+    return Store(out).keys(stage)
