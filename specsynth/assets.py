@@ -291,6 +291,9 @@ def finish_mesh(mesh: MeshData, what: str) -> MeshData:
     v = np.asarray(mesh.vertices, np.float64)
     if v.ndim != 2 or len(v) == 0 or len(mesh.faces) == 0:
         raise AssetError(f"{what}: empty mesh (no vertices or triangles)")
+    f = np.asarray(mesh.faces)
+    if f.min() < 0 or f.max() >= len(v):  # before normals are computed from them
+        raise AssetError(f"{what}: face indices out of range (0..{len(v) - 1}, found {int(f.min())}..{int(f.max())})")
     if not np.isfinite(v).all():
         raise AssetError(f"{what}: mesh has NaN or infinite vertex coordinates")
     normals = mesh.normals

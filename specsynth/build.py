@@ -508,7 +508,10 @@ def read_manifest(out: Path) -> dict[str, Any]:
     p = Path(out) / ".specsynth" / "manifest.json"
     if not p.is_file():
         raise FileNotFoundError(f"{out}: not a specsynth output folder (no .specsynth/manifest.json)")
-    return json.loads(p.read_bytes())
+    try:
+        return json.loads(p.read_bytes())
+    except ValueError as e:
+        raise FileNotFoundError(f"{p}: unreadable manifest ({type(e).__name__}); rebuild to rewrite it") from None
 
 
 def diff(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:

@@ -436,11 +436,12 @@ def main(argv: list[str] | None = None) -> int:
         from .backend_api import PluginNotFound
         from .build import BuildLocked, UnsafeOutput
         from .library.furniture import LibraryError
+        from .qa import DatasetFileError
         from .store import CorruptRecord
         from .writers.yolo import ExportError
 
         if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError, LibraryError,
-                          CorruptRecord, UnsafeOutput)):
+                          CorruptRecord, UnsafeOutput, DatasetFileError)):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)

@@ -13,6 +13,36 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 
+class DatasetFileError(ValueError):
+    """A file of a built dataset that cannot be read; the message names it (never its contents)."""
+
+
+def read_json(path: Path):
+    try:
+        return json.loads(Path(path).read_bytes())
+    except (OSError, ValueError) as e:
+        raise DatasetFileError(f"{path}: unreadable JSON ({type(e).__name__})") from None
+
+
+def open_image(path: Path):
+    """The image loaded (not lazily), or an error naming the file."""
+    try:
+        im = Image.open(path)
+        im.load()
+        return im
+    except (OSError, ValueError, SyntaxError) as e:
+        raise DatasetFileError(f"{path}: unreadable image ({type(e).__name__})") from None
+
+
+def read_parquet(path: Path):
+    import pyarrow.parquet as pq
+
+    try:
+        return pq.read_table(path).to_pandas()
+    except (OSError, ValueError) as e:
+        raise DatasetFileError(f"{path}: unreadable Parquet ({type(e).__name__})") from None
+
+
 @dataclass(frozen=True)
 class BopImage:
     chunk: Path
@@ -24,7 +54,7 @@ class BopImage:
 
     def mask_visib(self, gt_id: int) -> np.ndarray | None:
         p = self.chunk / "mask_visib" / f"{self.im_id:06d}_{gt_id:06d}.png"
-        return np.asarray(Image.open(p)) > 127 if p.is_file() else None
+        return np.asarray(open_image(p)) > 127 if p.is_file() else None
 
 
 def _split_dirs(out: Path) -> list[Path]:
@@ -36,9 +66,9 @@ def _split_dirs(out: Path) -> list[Path]:
 def list_images(out: Path) -> list[BopImage]:
     images = []
     for chunk in _split_dirs(Path(out)):
-        gt = json.loads((chunk / "scene_gt.json").read_text())
-        info = json.loads((chunk / "scene_gt_info.json").read_text()) if (chunk / "scene_gt_info.json").is_file() else {}
-        cams = json.loads((chunk / "scene_camera.json").read_text())
+        gt = read_json(chunk / "scene_gt.json")
+        info = read_json(chunk / "scene_gt_info.json") if (chunk / "scene_gt_info.json").is_file() else {}
+        cams = read_json(chunk / "scene_camera.json")
         for k in sorted(gt, key=int):
             im = int(k)
             rgb = next((chunk / "rgb" / f"{im:06d}.{e}" for e in ("jpg", "png") if (chunk / "rgb" / f"{im:06d}.{e}").is_file()), None)
@@ -58,7 +88,7 @@ def _colour(obj_id: int) -> tuple[int, int, int]:
 
 def annotate_image(img: BopImage) -> Image.Image:
     """The image with visible-mask outlines, visible boxes and object ids drawn on it."""
-    base = np.asarray(Image.open(img.rgb).convert("RGB")).copy()
+    base = np.asarray(open_image(img.rgb).convert("RGB")).copy()
     for gt_id, g in enumerate(img.gt):
         m = img.mask_visib(gt_id)
         if m is None or not m.any():
@@ -82,7 +112,7 @@ def annotate_image(img: BopImage) -> Image.Image:
 
 
 def _crops(img: BopImage, size: int) -> list[Image.Image]:
-    rgb = Image.open(img.rgb).convert("RGB")
+    rgb = open_image(img.rgb).convert("RGB")
     out = []
     for gt_id, info in enumerate(img.gt_info):
         x, y, w, h = info.get("bbox_visib", [-1, -1, -1, -1])
@@ -145,14 +175,13 @@ def dataset_stats(out: Path, dest: Path) -> dict:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import pyarrow.parquet as pq
 
     out, dest = Path(out), Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
-    images = pq.read_table(out / "parquet" / "images.parquet").to_pandas()
-    inst = pq.read_table(out / "parquet" / "instances.parquet").to_pandas()
+    images = read_parquet(out / "parquet" / "images.parquet")
+    inst = read_parquet(out / "parquet" / "instances.parquet")
     summary_path = out / ".specsynth" / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    summary = read_json(summary_path) if summary_path.is_file() else {}
 
     table: dict = {
         "images": int(len(images)),

@@ -444,3 +444,34 @@ def Store_keys(out, stage):
     from specsynth.store import Store
 
     return Store(out).keys(stage)
+
+
+@pytest.mark.parametrize("cmd, victim", [
+    ("view", "bop/train_pbr/000000/scene_gt.json"),
+    ("view", "bop/train_pbr/000000/rgb/000000.png"),
+    ("stats", "parquet/instances.parquet"),
+    ("diff", ".specsynth/manifest.json"),
+])
+def test_reading_commands_name_a_corrupt_file(spec_file, tmp_path, capsys, cmd, victim):
+    """view/stats/diff on a corrupt JSON, image or Parquet file said only what broke, not where."""
+    from specsynth.cli import main
+
+    out = tmp_path / "out"
+    build(graph(spec_file), out, jobs=1)
+    secret = b"root:x:0:0:supersecret"
+    (out / victim).write_bytes(secret + b"\x00\xff" * 8)
+    args = {"view": ["view", str(out), "--out", str(tmp_path / "s.png")],
+            "stats": ["stats", str(out), "--out", str(tmp_path / "st")],
+            "diff": ["diff", str(out), str(out)]}[cmd]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert str(out / victim) in err and "supersecret" not in err
+
+
+def test_a_mesh_with_out_of_range_faces_is_named(tmp_path):
+    from specsynth.assets import AssetError, finish_mesh
+    from specsynth.meshio import MeshData
+
+    bad = MeshData(vertices=np.zeros((3, 3), np.float32), faces=np.array([[0, 1, 7]], np.int32))
+    with pytest.raises(AssetError, match=r"broken.ply: face indices out of range \(0..2, found 0..7\)"):
+        finish_mesh(bad, "broken.ply")
