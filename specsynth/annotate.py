@@ -363,17 +363,13 @@ class Annotator:
         rays = np.stack(np.meshgrid((np.arange(size) - (size - 1) / 2.0) / f, (np.arange(size) - (size - 1) / 2.0) / f), -1)
         stretch = np.sqrt(1.0 + (rays ** 2).sum(-1))  # z-depth -> distance along the ray
         p = np.asarray(position, dtype=np.float64)
+        self._camera.znear, self._camera.zfar, self._camera.K = 0.001, 100.0, K
+        self._renderer.viewport_width = self._renderer.viewport_height = size
+        everything = {n: (255, 255, 255) for n in self._nodes}
         nearest = np.inf
         for R in _CUBE_FACES:
-            cam = CameraIR(K=tuple(map(tuple, K)), width=size, height=size, R_w2c=tuple(map(tuple, R)),
-                           t_w2c=tuple(-R @ p), near=0.001, far=100.0)
-            T = opencv_to_opengl_c2w(cam_to_world(R, -R @ p))
-            self._pscene.set_pose(self._camera_node, T)
-            self._camera.znear, self._camera.zfar = cam.near, cam.far
-            self._camera.K = K
-            self._renderer.viewport_width = self._renderer.viewport_height = size
-            z = np.asarray(self._renderer.render(self._pscene, self._flags,
-                                                 seg_node_map={n: (255, 255, 255) for n in self._nodes}), np.float64)
+            self._pscene.set_pose(self._camera_node, opencv_to_opengl_c2w(cam_to_world(R, -R @ p)))
+            z = np.asarray(self._renderer.render(self._pscene, self._flags, seg_node_map=everything), np.float64)
             hit = z > 0
             if hit.any():
                 nearest = min(nearest, float((z * stretch)[hit].min()))

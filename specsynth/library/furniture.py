@@ -126,10 +126,15 @@ def catalogue() -> tuple[FurnitureItem, ...]:
     return _catalogue(str(library_dir()))
 
 
+@functools.lru_cache(maxsize=4)
+def _by_id(folder: str) -> dict[str, FurnitureItem]:
+    return {item.id: item for item in _catalogue(folder)}
+
+
 def find(item_id: str) -> FurnitureItem:
-    for item in catalogue():
-        if item.id == item_id:
-            return item
+    item = _by_id(str(library_dir())).get(item_id)
+    if item is not None:
+        return item
     import difflib
 
     close = difflib.get_close_matches(item_id, [i.id for i in catalogue()], n=3)

@@ -17,6 +17,7 @@ import json
 import math
 import struct
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from urllib.parse import unquote
 
@@ -128,8 +129,6 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
 
 
 def untextured(m: MaterialIR) -> MaterialIR:
-    from dataclasses import replace
-
     return replace(m, texture=None, roughness_texture=None, metallic_texture=None, normal_texture=None,
                    emission_texture=None, opacity_texture=None, alpha_mode="opaque" if m.opacity_texture else m.alpha_mode)
 

@@ -102,11 +102,10 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int) -> list[Placed
     return placed
 
 
-def _tex(rng, options: list, what: str) -> tuple[str, float]:
+def _tex(rng, options: list, what: str) -> textures.SurfaceTexture:
     if not options:
         raise textures.TextureLibraryError(f"random_room: no {what} textures installed")
-    t = options[int(rng.integers(len(options)))]
-    return str(t.path), t
+    return options[int(rng.integers(len(options)))]
 
 
 def _box(name: str, size, at, material: SceneMaterial, collide: bool = True) -> SceneMesh:
@@ -158,14 +157,13 @@ def redress(rng, item: furniture.FurnitureItem, cache: Path, woods: list, felt) 
     return overrides, credits
 
 
-def _rug(rng, W: float, D: float, cache: Path) -> list[SceneMesh]:
+def _rug(rng, W: float, D: float, felt) -> list[SceneMesh]:
     """Half the rooms get a dyed felt rug (a thin box: objects may land on it)."""
-    felt = [t for t in textures.available(cache) if t.kind == "fabric"]
-    if not felt or rng.random() < 0.5:
+    if felt is None or rng.random() < 0.5:
         return []
     w, d = float(rng.uniform(1.2, min(2.4, W - 1.0))), float(rng.uniform(0.9, min(1.8, D - 1.0)))
     dye = DYES[int(rng.integers(len(DYES)))]
-    mat = SceneMaterial(texture=str(felt[0].path), base_color=dye, uv_scale=1.0 / felt[0].tile, roughness=0.95, specular=0.2)
+    mat = SceneMaterial(texture=str(felt.path), base_color=dye, uv_scale=1.0 / felt.tile, roughness=0.95, specular=0.2)
     return [_box("rug", (w, d, 0.01), (float(rng.uniform(-W / 4, W / 4)), float(rng.uniform(-D / 4, D / 4)), 0.005), mat)]
 
 
@@ -189,32 +187,33 @@ def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneF
     wx = float(rng.uniform(-W / 2 + 0.5 + win_w / 2, W / 2 - 0.5 - win_w / 2))
     window = (wx - win_w / 2, wx + win_w / 2, float(rng.uniform(0.8, 1.0)), float(rng.uniform(2.0, min(2.3, H - 0.2))))
 
-    floor_path, floor_t = _tex(rng, textures.of_kind(cache, "floor"), "floor")
-    wall_path, wall_t = _tex(rng, textures.of_kind(cache, "wall"), "wall")
-    floor_mat = SceneMaterial(texture=floor_path, uv_scale=1.0 / floor_t.tile, roughness=float(rng.uniform(0.3, 0.7)))
+    library = textures.available(cache)
+    felt = next((t for t in library if t.kind == "fabric"), None)
+    floor_t = _tex(rng, [t for t in library if t.kind == "floor"], "floor")
+    wall_t = _tex(rng, [t for t in library if t.kind == "wall"], "wall")
+    floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, roughness=float(rng.uniform(0.3, 0.7)))
     paint = PAINTS[int(rng.integers(len(PAINTS)))]
-    wall_mat = SceneMaterial(texture=wall_path, base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85, specular=0.3)
+    wall_mat = SceneMaterial(texture=str(wall_t.path), base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85, specular=0.3)
     meshes = [
         SceneMesh(name="floor", source={"plane": (W, D)}, material=floor_mat),
         _box("ceiling", (W + 2 * WALL, D + 2 * WALL, WALL), (0, 0, H + WALL / 2),
              SceneMaterial(base_color=(0.82, 0.82, 0.8), roughness=0.9), collide=False),
         *_walls(W, D, H, window, wall_mat),
     ]
-    meshes += _rug(rng, W, D, cache)
+    meshes += _rug(rng, W, D, felt)
     items = _fits([i for i in furniture.catalogue() if i.category in ROOM_KINDS[kind]], W, D, H)
     placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(6, 11)), n_middle=int(rng.integers(1, 3)))
-    woods = [t for t in textures.available(cache) if t.kind == "floor" and "wood" in t.name]
-    felt = next((t for t in textures.available(cache) if t.kind == "fabric"), None)
+    woods = [t for t in library if t.kind == "floor" and "wood" in t.name]
     dressed_credits = []
     for k, p in enumerate(placed):
         overrides, used = redress(rng, p.item, cache, woods, felt)
         dressed_credits += used
         meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id}, materials=overrides,
                                 transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
-    warm = kelvin_rgb(float(rng.uniform(3000, 6500)))
+    ceiling_colour = kelvin_rgb(float(rng.uniform(3000, 6500)))
     lights = [
         LightDef(kind="area", power=float(rng.uniform(60, 180)), size=(min(1.2, W / 3), min(1.2, D / 3)),
-                 color=warm, translation=(float(rng.uniform(-W / 6, W / 6)), float(rng.uniform(-D / 6, D / 6)), H - 0.02)),
+                 color=ceiling_colour, translation=(float(rng.uniform(-W / 6, W / 6)), float(rng.uniform(-D / 6, D / 6)), H - 0.02)),
         LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
                               float(rng.uniform(1.6, H - 0.4)))),
@@ -225,5 +224,5 @@ def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneF
                    world=world)
     credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed] + dressed_credits
     if any(m.name == "rug" for m in meshes):
-        credits.append(next(t for t in textures.available(cache) if t.kind == "fabric").credit)
+        credits.append(felt.credit)
     return sf, credits

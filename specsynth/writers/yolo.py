@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import shutil
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,8 +24,8 @@ from typing import Sequence
 
 import yaml
 
-from ..meshio import atomic_write_bytes
 from ..qa import BopImage, list_images
+from .bop import place_file, write_if_changed
 from .coco import coco_box
 
 DEFAULT_MIN_VISIB = 0.1  # the COCO writer's "ignore" threshold: below it a box teaches noise
@@ -165,14 +164,14 @@ def export_yolo(
         split = _yolo_split(img, val_split, val_groups, group_of)
         stem = f"{img.chunk.parent.name}_{int(img.chunk.name):06d}_{img.im_id:06d}"
         text, n, skipped = label_text(img, class_of, min_visib)
-        _copy_if_changed(img.rgb, dest / "images" / split / (stem + img.rgb.suffix.lower()))
-        _write_if_changed(dest / "labels" / split / f"{stem}.txt", text.encode())
+        place_file(img.rgb, dest / "images" / split / (stem + img.rgb.suffix.lower()))
+        write_if_changed(dest / "labels" / split / f"{stem}.txt", text.encode())
         keep[split] |= {stem + img.rgb.suffix.lower(), f"{stem}.txt"}
         summary.images[split] = summary.images.get(split, 0) + 1
         summary.boxes += n
         summary.skipped_low_visibility += skipped
     _remove_stale(dest, keep)
-    _write_if_changed(dest / "data.yaml", data_yaml(summary, out, min_visib))
+    write_if_changed(dest / "data.yaml", data_yaml(summary, out, min_visib))
     return summary
 
 
@@ -194,23 +193,6 @@ def data_yaml(summary: YoloSummary, out: Path, min_visib: float) -> bytes:
     if "val" not in splits:
         head += "# No held-out split (see --val / --val-fraction): val is the training split.\n"
     return (head + yaml.safe_dump(doc, sort_keys=False)).encode()
-
-
-def _write_if_changed(path: Path, data: bytes) -> None:
-    if path.is_file() and not path.is_symlink() and path.read_bytes() == data:
-        return
-    atomic_write_bytes(path, data)
-
-
-def _copy_if_changed(src: Path, dst: Path) -> None:
-    """A real copy (editing the export never edits the dataset), replaced atomically."""
-    if dst.is_file() and not dst.is_symlink() and dst.stat().st_size == src.stat().st_size:
-        if dst.read_bytes() == src.read_bytes():
-            return
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    shutil.copyfile(src, tmp)
-    tmp.replace(dst)
 
 
 def _remove_stale(dest: Path, keep: dict[str, set[str]]) -> None:
