@@ -10,12 +10,15 @@ export PYOPENGL_PLATFORM ?= egl
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/install-system-deps.sh scripts/install-assets.sh
+PLUGINS := backends/cycles backends/mitsuba backends/photo
+
+$(STAMP): pyproject.toml $(addsuffix /pyproject.toml,$(PLUGINS)) examples/plugin_backend/pyproject.toml scripts/install-system-deps.sh scripts/install-assets.sh
 	./scripts/install-system-deps.sh
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (Python 3.11)"; exit 1; }
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[all]'
+	$(BIN)/pip install -q -e '.[all]' $(addprefix -e ,$(PLUGINS))
+	$(BIN)/pip install -q examples/plugin_backend  # the out-of-tree example; the tests run it
 	./scripts/install-assets.sh $(BIN)/python
 	touch $(STAMP)
 
@@ -39,7 +42,7 @@ bench: install
 	$(BIN)/specsynth bench specs/demo.yaml --out bench-out/demo --views 2 --scale 0.25 --ref-factor 4
 
 schema: install
-	$(BIN)/specsynth schema
+	$(BIN)/specsynth schema --backends cycles,mitsuba,photo
 
 clean:
 	rm -rf out bench-out .pytest_cache

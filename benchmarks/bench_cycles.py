@@ -109,8 +109,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     import bpy
 
-    from backends.cycles import CyclesBackend
-    from backends.cycles.settings import coerce_options
+    from specsynth_cycles.backend import CyclesBackend
+    from specsynth_cycles.settings import coerce_options
 
     envmap = str(Path(bpy.utils.system_resource("DATAFILES", path="studiolights")) / "world" / "courtyard.exr")
     results = []

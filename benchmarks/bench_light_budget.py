@@ -19,7 +19,8 @@ from specsynth.backend_api import load_backend
 from specsynth.bench import psnr8
 from specsynth.preview import overview_camera
 from specsynth.scenes import builtin_scenes, load_scene
-from specsynth.spec import PAPER_PRESETS, CyclesOptions, Intrinsics
+from specsynth.spec import PAPER_PRESETS, Intrinsics
+from specsynth_cycles.options import CyclesOptions
 
 
 def lambertian(scene):

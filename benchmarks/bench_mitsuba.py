@@ -29,7 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple  # noqa: E402
 from specsynth.meshio import MeshData, write_mesh  # noqa: E402
-from specsynth.spec import PAPER_PRESETS, MitsubaOptions  # noqa: E402
+from specsynth.spec import PAPER_PRESETS  # noqa: E402
+from specsynth_mitsuba.options import MitsubaOptions  # noqa: E402
 
 
 def find_hdri(name: str = "courtyard") -> Path | None:
@@ -110,7 +111,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     t0 = time.perf_counter()
-    from backends.mitsuba import MitsubaBackend
+    from specsynth_mitsuba.backend import MitsubaBackend
 
     backend = MitsubaBackend(MitsubaOptions(name="mitsuba", variant=a.variant, sampler=a.sampler), threads=a.threads)
     t_init = time.perf_counter() - t0

@@ -9,8 +9,8 @@ import argparse
 
 import numpy as np
 
-from backends.mitsuba.backend import MitsubaBackend
-from backends.mitsuba.sensor import PINHOLE
+from specsynth_mitsuba.backend import MitsubaBackend
+from specsynth_mitsuba.sensor import PINHOLE
 
 
 def bench(width: int = 320, height: int = 240, spp: int = 16, views: int = 6, threads: int = 1) -> None:

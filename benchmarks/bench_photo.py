@@ -90,7 +90,7 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    from backends.photo import PhotoBackend
+    from specsynth_photo.backend import PhotoBackend
     from specsynth.ir import RenderScene
     from specsynth.spec import PAPER_PRESETS
 

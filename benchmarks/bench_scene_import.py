@@ -103,12 +103,12 @@ def main() -> None:
             cams.append(CameraIR(K=as_tuple(K), width=640, height=480, R_w2c=as_tuple(R), t_w2c=as_tuple(t)))
         for name in args.backends:
             if name == "cycles":
-                from backends.cycles import CyclesBackend
+                from specsynth_cycles.backend import CyclesBackend
 
                 b = CyclesBackend({"name": "cycles", "denoise": True}, threads=2)
                 q = QualityPreset(aa=1, diffuse_rays=1, specular_rays=1, diffuse_depth=1, specular_depth=1, max_depth=2)
             else:
-                from backends.mitsuba import MitsubaBackend
+                from specsynth_mitsuba.backend import MitsubaBackend
 
                 b = MitsubaBackend({"variant": "auto"}, threads=2)
                 q = QualityPreset(aa=4, diffuse_rays=1, specular_rays=1, diffuse_depth=1, specular_depth=1, max_depth=2)

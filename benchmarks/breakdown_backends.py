@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backends.mitsuba import mapping
+from specsynth_mitsuba import mapping
 from specsynth.backend_api import load_backend
 from specsynth.bench import psnr8
 from specsynth.colour import linear_to_srgb8

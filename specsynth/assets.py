@@ -3,7 +3,7 @@
 Everything is converted once into the normalised form of ``specsynth.meshio`` (metres) and cached
 by content hash under ``<cache>/assets/``; backends and the annotation engine read only that form.
 No network, ever: BOP models come from a folder the user downloaded, built-ins from the
-``pybullet_data`` package, HDRIs from the ``bpy`` wheel.
+``pybullet_data`` package, HDRIs from the library (``library/hdris.py``).
 
 The compile path calls only :func:`object_fingerprints` (hashes of source bytes, no mesh parsing),
 so heavy imports (trimesh, PIL) happen inside the conversion functions.
@@ -15,7 +15,6 @@ import difflib
 import functools
 import hashlib
 import importlib.util
-from importlib import metadata
 import json
 import math
 import os
@@ -30,6 +29,8 @@ from . import spec as spec_mod
 from .colour import srgb_to_linear
 from .conventions import rpy_matrix
 from .ir import MaterialIR
+from .library.cache import cache_dir
+from .library.hdris import SOURCE as HDRI_SOURCE, builtin_hdris, studiolights_dir  # noqa: F401  (builtin_hdris re-exported)
 from .meshfiles import ply, single, urdf as urdf_reader
 from .meshfiles.part import MeshFileError
 from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
@@ -80,11 +81,6 @@ class ObjectAsset:
 
 
 # --------------------------------------------------------------------------- paths, hashing
-
-
-def cache_dir() -> Path:
-    env = os.environ.get("SPECSYNTH_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "specsynth"
 
 
 @functools.lru_cache(maxsize=8192)
@@ -142,27 +138,10 @@ def resolve_data_ref(ref: str, base: Path, what: str) -> Path:
 # --------------------------------------------------------------------------- HDRIs
 
 
-def _studiolights_dir() -> Path | None:
-    """The bpy wheel's HDRI folder, found through the installed distribution, not ``import bpy``
-    (a 300 MB renderer) nor ``find_spec``: once a process has imported bpy, its sys.path (which
-    spawned workers inherit) resolves ``bpy`` to a pure-Python package far from the data files."""
-    try:
-        root = Path(metadata.distribution("bpy").locate_file("bpy"))
-    except metadata.PackageNotFoundError:
-        return None
-    hits = sorted(root.glob("*/datafiles/studiolights/world"))
-    return hits[-1] if hits else None
-
-
-def builtin_hdris() -> list[str]:
-    d = _studiolights_dir()
-    return sorted(p.stem for p in d.glob("*.exr")) if d else []
-
-
 def hdri_path(name: str) -> Path:
-    d = _studiolights_dir()
+    d = studiolights_dir()
     if d is None:
-        raise AssetError(f"HDRI {name!r}: the bpy wheel (pip install specsynth[cycles]) bundles the built-in HDRIs")
+        raise AssetError(f"HDRI {name!r}: the built-in HDRIs come with {HDRI_SOURCE}")
     p = d / f"{name}.exr"
     if not p.is_file():
         raise AssetError(f"HDRI {name!r}: unknown, built-in HDRIs are {', '.join(builtin_hdris())}")
@@ -272,7 +251,7 @@ def read_any_mesh(path: Path) -> tuple[MeshData, str | None]:
 
 
 def _primitive_mesh(prim: tuple) -> MeshData:
-    from .scenes import procedural
+    from .meshfiles import primitives as procedural
 
     kind, args = prim
     if kind == "box":
@@ -512,7 +491,7 @@ def _convert(src: _Source) -> tuple[MeshData, str | None, tuple[float, float, fl
 
 
 def _convert_builtin(src: _Source):
-    from .scenes import procedural
+    from .meshfiles import primitives as procedural
 
     b = src.builtin
     root = pybullet_data_root()

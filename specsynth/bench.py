@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .backend_api import PluginNotFound, available_backends, load_backend
+from .plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_backend_plugins
 from .build import build
 from .compiler import JobGraph
 from .records import ArrangementRecord, ViewRecord
-from .spec import CyclesOptions, QualityPreset
+from .spec import QualityPreset
 from .store import Store, write_json
 
 
@@ -45,17 +45,14 @@ class Row:
     samples: int
 
 
-def settings_for(backend: str, ref_factor: int) -> list[Setting]:
+def settings_for(plugin: BackendPlugin, ref_factor: int) -> list[Setting]:
+    """Each quality level plain and with each of the plugin's own bench variants, then a reference."""
     out = []
     for level in ("low", "medium", "high"):
-        out.append(Setting(backend, f"{level}", level, {}))
-        if backend == "cycles":
-            out.append(Setting(backend, f"{level}+denoise", level, {"denoise": True}))
-            out.append(Setting(backend, f"{level}+adaptive", level, {"adaptive_threshold": 0.01}))
-        if backend == "mitsuba":  # the default sampler is stratified
-            out.append(Setting(backend, f"{level}+independent", level, {"sampler": "independent"}))
-            out.append(Setting(backend, f"{level}+ldsampler", level, {"sampler": "ldsampler"}))
-    out.append(Setting(backend, "reference", "high", {"__factor__": ref_factor}, reference=True))
+        out.append(Setting(plugin.name, f"{level}", level, {}))
+        for suffix, options in plugin.bench_variants:
+            out.append(Setting(plugin.name, f"{level}+{suffix}", level, dict(options)))
+    out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor}, reference=True))
     return out
 
 
@@ -144,26 +141,25 @@ def camera_savings(backend: str, rows: list[Row], level: str, cams: tuple[dict, 
     return out
 
 
-def light_budget_saving(cls, base_opts: dict, spec, picked, worker, preset, repeats: int) -> Saving | None:
-    """Cycles only: the same views with and without the scene-derived light-path budget."""
+def toggle_saving(plugin: BackendPlugin, label: str, option: str, base_opts: dict, spec, picked, worker, preset,
+                  repeats: int) -> Saving:
+    """The same views rendered with a boolean backend option on and off."""
+    cls = plugin.load_class()
     times: dict[bool, list[float]] = {True: [], False: []}
-    skipped = 0
     for arec, vrec, seed in picked:
         scene = worker.render_scene(arec)
         cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
-        for budget in (True, False, False, True) * max(1, repeats):  # alternate: the first render after a load is slower
-            backend = cls(CyclesOptions.model_validate({**base_opts, "light_path_budget": budget}), threads=0)
+        for on in (True, False, False, True) * max(1, repeats):  # alternate: the first render after a load is slower
+            backend = cls(plugin.options.model_validate({**base_opts, option: on}), threads=0)
             backend.load(scene)
             backend.render(cam, preset, seed, clamp=spec.quality.clamp)  # warm
             t0 = time.perf_counter()
-            res = backend.render(cam, preset, seed, clamp=spec.quality.clamp)
-            times[budget].append(time.perf_counter() - t0)
-            skipped += bool(budget and res.stats.get("glossy_skipped"))
+            backend.render(cam, preset, seed, clamp=spec.quality.clamp)
+            times[on].append(time.perf_counter() - t0)
             backend.close()
     on, off = statistics.median(times[True]), statistics.median(times[False])
-    return Saving("cycles", "light-path budget", off - on, "render",
-                  f"median {on:.2f} s with vs {off:.2f} s without, {len(picked)} view(s); glossy bounces "
-                  f"skipped in {skipped} of {len(times[True])} budgeted renders")
+    return Saving(plugin.name, label, off - on, "render",
+                  f"median {on:.2f} s with {option} vs {off:.2f} s without, {len(picked)} view(s)")
 
 
 def scaled_intrinsics(intr, scale: float):
@@ -186,21 +182,22 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
     picked, cams = _views(graph, out, n_views)
     if not picked:
         raise RuntimeError("no accepted view to benchmark; widen the camera ranges")
-    names = backends or [b for b in available_backends() if b != "photo"]
+    names = backends or [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
     rows: list[Row] = []
     savings: list[Saving] = []
     for name in names:
         try:
-            cls = load_backend(name)
+            plugin = backend_plugin(name)
+            cls = plugin.load_class()
         except PluginNotFound as e:
             if console:
                 console.print(f"[yellow]skipping {name}: {e}[/yellow]")
             continue
-        base_opts = spec.backend.model_dump() if spec.backend.name == name else {"name": name}
-        base_opts = {k: v for k, v in base_opts.items() if k in {"name", "threads", "variant", "sampler"}}
+        # The spec's own options for this backend, minus what the bench varies (denoise, samples).
+        base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
         worker = Worker(BuildContext(spec=spec.model_copy(update={"intrinsics": small}), spec_dir=graph.spec_path.parent, out=out))
         refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        settings = settings_for(name, ref_factor)
+        settings = settings_for(plugin, ref_factor)
         settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
         for st in settings:
             opts = dict(base_opts)
@@ -210,7 +207,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 f = st.options["__factor__"]  # every ray count: backends take samples from their max
                 preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * f,
                                           "diffuse_rays": preset.diffuse_rays * f, "specular_rays": preset.specular_rays * f})
-            backend = cls(type(spec.backend).model_validate(opts) if spec.backend.name == name else opts, threads=0)
+            backend = cls(plugin.options.model_validate(opts), threads=0)
             times, errs, loads = [], [], []
             samples = 0
             for i, (arec, vrec, seed) in enumerate(picked):
@@ -250,9 +247,9 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
         level = spec.quality.level
         savings += camera_savings(name, rows, level, cams, statistics.median(loads), spec.cameras.per_arrangement)
-        if name == "cycles":
-            preset = spec.quality.model_copy(update={"level": level}).resolved()
-            savings.append(light_budget_saving(cls, base_opts, spec, picked, worker, preset, repeats))
+        preset = spec.quality.model_copy(update={"level": level}).resolved()
+        for label, option in plugin.bench_toggles:
+            savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, worker, preset, repeats))
         worker.close()
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
     return rows, savings

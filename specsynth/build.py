@@ -21,18 +21,13 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from . import keys
-from .backend_api import load_executor
+from .plugins import PluginNotFound, backend_plugin, load_executor
 from .compiler import STAGES, JobGraph
 from .records import ImageRecord
 from .store import Store, write_json
 
 # Rough seconds per job on a 2-core machine (../shared/measurements.md), for `plan` estimates only.
 EST_SECONDS = {"arrange": 0.5, "view": 0.08}
-EST_RENDER = {  # seconds = a + b * samples
-    "cycles": (1.4, 0.458),
-    "mitsuba": (0.11, 0.122),
-    "photo": (0.05, 0.0),
-}
 
 
 class BuildLocked(RuntimeError):
@@ -119,7 +114,16 @@ class BuildSummary:
 def _samples(graph: JobGraph) -> int:
     """The backends' rule: an explicit `samples`, else max(AA, diffuse rays, specular rays)."""
     q = graph.spec.quality.resolved()
-    return getattr(graph.spec.backend, "samples", None) or max(q.aa, q.diffuse_rays, q.specular_rays)
+    return graph.spec.backend.samples or max(q.aa, q.diffuse_rays, q.specular_rays)
+
+
+def _render_estimate(graph: JobGraph) -> float:
+    """Estimated seconds per render, from the backend plugin's own cost model."""
+    try:
+        a, b = backend_plugin(graph.spec.backend.name).cost
+    except PluginNotFound:
+        a, b = 1.0, 0.1
+    return a + b * _samples(graph)
 
 
 def plan(graph: JobGraph, out: Path) -> dict[str, Any]:
@@ -134,8 +138,7 @@ def plan(graph: JobGraph, out: Path) -> dict[str, Any]:
             c["cached"] += 1
         else:
             c["to_run"] += 1
-    a, b = EST_RENDER.get(graph.spec.backend.name, (1.0, 0.1))
-    per = {"arrange": EST_SECONDS["arrange"], "view": EST_SECONDS["view"], "render": a + b * _samples(graph)}
+    per = {"arrange": EST_SECONDS["arrange"], "view": EST_SECONDS["view"], "render": _render_estimate(graph)}
     for s in STAGES:
         counts[s]["est_seconds"] = round(counts[s]["to_run"] * per[s], 1)
     return {
@@ -264,8 +267,7 @@ SINGLE_RENDER_SECONDS = 0.5
 
 def render_chunk(graph: JobGraph, n: int, workers: int) -> int:
     """How many of an arrangement's ``n`` renders go in one call."""
-    a, b = EST_RENDER.get(graph.spec.backend.name, (1.0, 0.1))
-    if a + b * _samples(graph) >= SINGLE_RENDER_SECONDS:
+    if _render_estimate(graph) >= SINGLE_RENDER_SECONDS:
         return 1
     return max(1, min(RENDER_CHUNK, -(-n // workers)))
 

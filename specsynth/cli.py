@@ -50,7 +50,8 @@ def cmd_validate(args) -> int:
 def cmd_schema(args) -> int:
     from .spec import json_schema
 
-    text = json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
+    backends = tuple(args.backends.split(",")) if args.backends else None
+    text = json.dumps(json_schema(backends), indent=2, sort_keys=True) + "\n"
     if args.stdout:
         sys.stdout.write(text)
         return 0
@@ -125,7 +126,7 @@ def cmd_build(args) -> int:
     )
     if s.saved:
         out.print("time saved (s): " + ", ".join(f"{k.replace('_', ' ')} {v:.1f}" for k, v in s.saved.items())
-                  + f"; glossy bounces skipped in {s.glossy_bounces_skipped} render(s)")
+                  + (f"; glossy bounces skipped in {s.glossy_bounces_skipped} render(s)" if s.glossy_bounces_skipped else ""))
     if s.failures:
         out.print(f"[red]{len(s.failures)} failed job group(s); see {Path(args.out) / 'failures.json'}[/red]")
         for f in s.failures[:10]:
@@ -247,6 +248,46 @@ def _show_scene(args) -> int:
     return 0
 
 
+def backend_rows() -> list[dict]:
+    """Every installed backend plugin: distribution, capabilities, options (names, defaults)."""
+    from .plugins import PluginNotFound, available_backends, backend_plugin
+
+    rows = []
+    for name in available_backends():
+        try:
+            p = backend_plugin(name)
+        except PluginNotFound as e:
+            rows.append({"name": name, "error": str(e)})
+            continue
+        caps = p.capabilities
+        rows.append({
+            "name": p.name, "fingerprint": p.fingerprint(),
+            "capabilities": {"draws_scene": caps.draws_scene, "denoise": caps.denoise, "gpu": caps.gpu,
+                             "material_channels": sorted(caps.material_channels), "quality": caps.quality},
+            "options": {k: f.default for k, f in p.options.model_fields.items() if k != "name"},
+        })
+    return rows
+
+
+def cmd_backends(args) -> int:
+    import json
+
+    rows = backend_rows()
+    if args.json:
+        print(json.dumps(rows, indent=2, default=str))
+        return 0
+    for r in rows:
+        if "error" in r:
+            print(f"{r['name']:10s} BROKEN: {r['error']}")
+            continue
+        c = r["capabilities"]
+        flags = [k for k in ("draws_scene", "denoise", "gpu") if c[k]]
+        print(f"{r['name']:10s} {r['fingerprint']}\n{'':10s} can: {', '.join(flags) or '-'}; materials: "
+              f"{', '.join(c['material_channels'])}\n{'':10s} options: "
+              + ", ".join(f"{k}={v!r}" for k, v in r["options"].items()))
+    return 0
+
+
 def cmd_furniture(args) -> int:
     from .library.furniture import catalogue
 
@@ -339,6 +380,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("schema", help="write the JSON Schema of the spec")
     p.add_argument("--out", default=str(SCHEMA_PATH))
     p.add_argument("--stdout", action="store_true")
+    p.add_argument("--backends", help="comma-separated plugins to include (default: every installed one)")
     p.set_defaults(fn=cmd_schema)
 
     p = with_set(sub.add_parser("compile", help="compile a spec into its job graph (no rendering)"))
@@ -374,11 +416,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clearance", type=float, default=None,
                    help="show: free space (m) a found stage needs above it (default 0.6; builds use the "
                         "largest drop height + the largest object)")
-    p.add_argument("--backend", default="cycles", help="a backend that draws scenes: cycles or mitsuba")
+    p.add_argument("--backend", default=None, help="an installed backend that draws scenes (default: the first)")
     p.add_argument("--out", default="scene.png")
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--samples", type=int, default=32)
     p.set_defaults(fn=cmd_scenes)
+
+    p = sub.add_parser("backends", help="installed render backend plugins, their capabilities and options")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_backends)
 
     p = sub.add_parser("furniture", help="list the furniture library (ids for scene files' {furniture: ID} sources)")
     p.add_argument("--category", help="e.g. 'Living room', 'Kitchen', 'Office', 'Bedroom'")

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Iterator
 
 from . import keys, seeds
+from .plugins import backend_plugin
 from .assets import AssetError, check_texture, expand_path, file_digest, object_fingerprints
 from .scenes import declares_stages, scene_fingerprint, stage_table
 from .spec import DatasetSpec
@@ -38,14 +39,6 @@ STAGE_FIELDS = {
         "outputs.exr",
     ),
 }
-
-# Distributions whose versions change what a backend renders (read from metadata: no import).
-BACKEND_DISTRIBUTIONS = {
-    "cycles": ("bpy",),
-    "mitsuba": ("mitsuba", "drjit"),
-    "photo": ("pyrender", "scikit-image"),
-}
-
 
 def arr_id(arr: int) -> str:
     return f"arr={arr:06d}"
@@ -84,14 +77,7 @@ def _dist_version(name: str) -> str:
 
 def backend_fingerprint(name: str) -> str:
     """Backend name and the versions of what it renders with, without importing the renderer."""
-    dists = BACKEND_DISTRIBUTIONS.get(name)
-    if dists is None:
-        eps = [ep for ep in metadata.entry_points(group="specsynth.backends") if ep.name == name]
-        dist = eps[0].dist if eps and eps[0].dist is not None else None
-        return f"{name} ({dist.name} {dist.version})" if dist else f"{name} (unknown)"
-    rev = keys.BACKEND_REVISIONS.get(name, 1)
-    return (f"{name} (" + ", ".join(f"{d} {_dist_version(d)}" for d in dists) + f"; specsynth {_dist_version('specsynth')}"
-            + (f"; backend rev {rev})" if rev > 1 else ")"))
+    return backend_plugin(name).fingerprint()
 
 
 def _field(data: dict, dotted: str):
@@ -227,9 +213,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     stage_inputs["view"]["annotator"] = f"pyrender {_dist_version('pyrender')}"
     backend = backend_fingerprint(spec.backend.name)
     stage_inputs["render"]["backend"] = backend
-    backgrounds = getattr(spec.backend, "backgrounds", "builtin")
-    if backgrounds != "builtin":
-        stage_inputs["render"]["backgrounds"] = _folder_listing_digest(Path(backgrounds), loaded.directory)
+    for folder in spec.backend.input_folders():
+        stage_inputs["render"][f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
     stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
     stage_inputs["arrange"].update(scene_hashes)  # for diff attribution; keyed per job (arrange_job)
     return JobGraph(

@@ -17,11 +17,7 @@ from typing import Any
 # through it) and cuts coverage-mapped holes.
 STAGE_VERSIONS = {"arrange": 1, "view": 2, "render": 2}
 
-# Bump a built-in backend's revision when its images change for the same inputs and package
-# versions (a fix in its mapping): only that backend's renders re-run. Unlisted backends: 1.
-# mitsuba 2: exact K sensor for fy != fx, stratified sampler, albedo calibrated to Cycles, sky
-# units, see-through area lights. cycles 2: sky sun azimuth turned the IR's way.
-BACKEND_REVISIONS = {"mitsuba": 2, "cycles": 2}
+# A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 
 
 def canonical_json(obj: Any) -> bytes:

@@ -8,7 +8,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from . import cameras
-from .backend_api import load_backend
+from .plugins import PluginNotFound, backend_plugin, installed_backend_plugins
 from .meshio import read_mesh
 from .scenes import load_scene
 from .spec import Intrinsics, QualityPreset
@@ -79,14 +79,24 @@ def draw_stages(rgb: np.ndarray, scene, cam) -> Image.Image:
     return im
 
 
-def preview_scene(name: str, backend: str, dest: Path, *, width: int = 640, height: int = 480, samples: int = 16) -> Path:
+def scene_backends() -> list[str]:
+    """Installed backends that draw scenes, the first the default for previews."""
+    return [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
+
+
+def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 640, height: int = 480, samples: int = 16) -> Path:
     scene = load_scene(name, Path.cwd())
     intr = Intrinsics(width=width, height=height, fx=0.45 * width, fy=0.45 * width, cx=width / 2 - 0.5, cy=height / 2 - 0.5)
     cam = overview_camera(scene, intr)
-    cls = load_backend(backend)
-    if not cls.draws_scene:
-        raise ValueError(f"backend {backend!r} draws only dataset objects; preview a scene with a PBR backend (cycles, mitsuba)")
-    r = cls({"name": backend}, threads=0)
+    drawers = scene_backends()
+    backend = backend or (drawers[0] if drawers else None)
+    if backend is None:
+        raise PluginNotFound("no installed backend draws scenes")
+    plugin = backend_plugin(backend)
+    if not plugin.capabilities.draws_scene:
+        raise ValueError(f"backend {backend!r} draws only dataset objects; preview a scene with one that draws "
+                         f"scenes ({', '.join(drawers) or 'none installed'})")
+    r = plugin.load_class()(plugin.options(), threads=0)
     rs = scene.with_objects(())
     r.load(rs)
     res = r.render(cam, QualityPreset(aa=samples, diffuse_rays=samples, specular_rays=samples, diffuse_depth=3,

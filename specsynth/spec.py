@@ -17,7 +17,9 @@ from pydantic import (
     ConfigDict,
     Discriminator,
     Field,
+    SerializeAsAny,
     Tag,
+    create_model,
     field_validator,
     model_validator,
 )
@@ -291,35 +293,46 @@ class Quality(Strict):
 # --------------------------------------------------------------------------- backends
 
 
-class CyclesOptions(Strict):
-    name: Literal["cycles"]
-    threads: int = Field(0, ge=0, le=1024, description="Render threads; 0 = one per core.")
-    denoise: bool = Field(False, description="OpenImageDenoise on the beauty pass.")
-    adaptive_threshold: float | None = Field(None, gt=0, description="Adaptive sampling noise threshold.")
-    samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
-    light_path_budget: bool = Field(
-        True, description="No glossy / transmission bounces when no material in the scene needs them."
-    )
+class BackendOptions(Strict):
+    """The options every backend takes. A backend plugin's own options model subclasses this with
+    ``name: Literal[<its name>]``; the spec's ``backend`` block is validated by the installed
+    plugin's model (see ``plugins.py``), so a backend can be swapped with ``backend.name`` alone."""
 
-
-class MitsubaOptions(Strict):
-    name: Literal["mitsuba"]
-    variant: Literal["auto", "llvm_ad_rgb", "scalar_rgb", "cuda_ad_rgb"] = "auto"
-    sampler: Literal["independent", "ldsampler", "stratified"] = Field(
-        "stratified",
-        description="Mitsuba sampler. stratified (jittered, needs a perfect square: the presets' 1/36/225 are) "
-        "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k.",
-    )
-    samples: int | None = Field(None, ge=1, description="Override the preset-derived sample count.")
+    name: str = Field(description="Installed backend plugin (see `specsynth backends`).")
     denoise: bool = Field(
-        False, description="OpenImageDenoise (pyoidn, on the CPU) on the beauty pass, with albedo and normal AOVs "
-        "rendered in the same pass, as Cycles' denoise does.",
+        False, description="Denoise the beauty pass (OpenImageDenoise with albedo and normal passes). "
+        "Backends whose renders carry no sampling noise accept it and do nothing.",
     )
-    match_cycles_bsdf: bool = Field(
-        True,
-        description="Calibrate Mitsuba's principled BSDF to Blender's per-bounce albedo (dielectrics), so the "
-        "two backends render the same scene alike; false = Mitsuba's own principled.",
-    )
+    samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count.")
+
+    def input_folders(self) -> tuple[str, ...]:
+        """Folders (other than assets) whose files change renders; the compiler fingerprints them."""
+        return ()
+
+    def relative_to(self, spec_dir) -> "BackendOptions":
+        """These options with relative paths resolved against the spec's folder."""
+        return self
+
+
+def _backend_name(v: Any) -> str | None:
+    return v.get("name") if isinstance(v, dict) else getattr(v, "name", None)
+
+
+def _backend_options(v: Any) -> Any:
+    from .plugins import PluginNotFound, backend_plugin
+
+    name = _backend_name(v)
+    if not isinstance(name, str):
+        return v  # the base model reports the missing or mistyped name
+    try:
+        plugin = backend_plugin(name)
+    except PluginNotFound as e:
+        raise ValueError(str(e)) from None
+    if isinstance(v, plugin.options):
+        return v
+    if isinstance(v, BaseModel):
+        v = v.model_dump()
+    return plugin.options.model_validate(v)
 
 
 class Augment(Strict):
@@ -329,43 +342,6 @@ class Augment(Strict):
     saturation: float = Field(0.0, ge=0, le=1)
     noise_std: float = Field(0.0, ge=0, le=0.5, description="Gaussian noise std, in [0,1] intensity.")
     blur_sigma: FloatRange(0.0, 50.0) = Field((0.0, 0.0), description="Gaussian blur sigma range, pixels.")
-
-
-class PhotoOptions(Strict):
-    name: Literal["photo"]
-    backgrounds: str = Field(
-        "builtin", description="'builtin' (scikit-image photos + HDRI crops) or a folder of photographs."
-    )
-    lights: IntRange(0) = Field((1, 3), description="Random point/directional lights per image.")
-    ambient: FloatRange(0.0, 10.0) = Field((0.1, 0.4), description="Ambient light intensity range.")
-    augment: Augment = Augment()
-
-
-class PluginOptions(Strict):
-    """Any other installed backend plugin; its options are passed through as they are."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    name: str
-    options: dict[str, Any] = Field(default_factory=dict)
-
-
-KNOWN_BACKENDS = ("cycles", "mitsuba", "photo")
-
-
-def _backend_tag(v: Any) -> str:
-    name = v.get("name") if isinstance(v, dict) else getattr(v, "name", None)
-    return name if name in KNOWN_BACKENDS else "plugin"
-
-
-Backend = Annotated[
-    Union[
-        Annotated[CyclesOptions, Tag("cycles")],
-        Annotated[MitsubaOptions, Tag("mitsuba")],
-        Annotated[PhotoOptions, Tag("photo")],
-        Annotated[PluginOptions, Tag("plugin")],
-    ],
-    Discriminator(_backend_tag),
-]
 
 
 # --------------------------------------------------------------------------- outputs
@@ -439,13 +415,31 @@ class DatasetSpec(Strict):
     cameras: Cameras = Cameras()
     visibility: Visibility = Visibility()
     quality: Quality = Quality()
-    backend: Backend = Field(description="Render backend and its options, selected by 'name'.")
+    backend: SerializeAsAny[BackendOptions] = Field(
+        description="Render backend and its options, validated by the installed plugin named by 'name'."
+    )
     outputs: Outputs = Outputs()
     metadata: Metadata = Metadata()
 
+    @field_validator("backend", mode="before")
+    @classmethod
+    def _plugin_options(cls, v):
+        return _backend_options(v)
 
-def json_schema() -> dict:
-    schema = DatasetSpec.model_json_schema()
+
+def json_schema(backends: tuple[str, ...] | None = None) -> dict:
+    """The spec's schema with the options of every installed backend plugin (or of ``backends``)
+    under ``backend``."""
+    from .plugins import installed_backend_plugins
+
+    plugins = [p for p in installed_backend_plugins() if backends is None or p.name in backends]
+    model = DatasetSpec
+    if plugins:
+        tagged = tuple(Annotated[p.options, Tag(p.name)] for p in plugins)
+        one = plugins[0].options if len(plugins) == 1 else Annotated[Union[tagged], Discriminator(_backend_name)]
+        model = create_model("DatasetSpec", __base__=DatasetSpec, __doc__=DatasetSpec.__doc__,
+                             backend=(one, Field(description=DatasetSpec.model_fields["backend"].description)))
+    schema = model.model_json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "specsynth dataset spec"
     return schema

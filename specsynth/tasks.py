@@ -18,7 +18,7 @@ from threadpoolctl import threadpool_limits
 
 from . import cameras, seeds
 from .assets import ObjectAsset, resolve_objects
-from .backend_api import load_backend
+from .plugins import backend_plugin
 from .colour import check_finite
 from .compiler import Job
 from .ir import MeshInstance, RenderScene, as_tuple
@@ -55,6 +55,7 @@ class Worker:
         self._scenes: dict[tuple[str, int | None], SceneDesc] = {}
         self._annotator = None
         self._backend = None
+        self._draws_scene = True
         # What the annotator / backend hold now: (arrangement key, seconds its load took).
         self._loaded: dict[str, tuple[str, float]] = {}
         # One BLAS thread: our products are 4x4 poses and Nx3 vertex arrays, too small to gain from
@@ -89,14 +90,12 @@ class Worker:
 
     def backend(self):
         if self._backend is None:
-            cls = load_backend(self.spec.backend.name)
-            options = self.spec.backend
-            folder = getattr(options, "backgrounds", "builtin")
-            if folder != "builtin" and not Path(folder).expanduser().is_absolute():
-                # Paths in a spec are relative to the spec file (as the compiler hashes them),
-                # never to wherever the build was started.
-                options = options.model_copy(update={"backgrounds": str(self.ctx.spec_dir / folder)})
-            self._backend = cls(options, threads=self.ctx.threads)
+            plugin = backend_plugin(self.spec.backend.name)
+            # Paths in a spec are relative to the spec file (as the compiler hashes them), never
+            # to wherever the build was started.
+            options = self.spec.backend.relative_to(self.ctx.spec_dir)
+            self._backend = plugin.load_class()(options, threads=self.ctx.threads)
+            self._draws_scene = plugin.capabilities.draws_scene
         return self._backend
 
     def close(self) -> None:
@@ -256,7 +255,7 @@ class Worker:
         backend = self.backend()
         annot = self.annotator()
         load_seconds = self.load("backend", arrange_key, scene) + self.load("annotator", arrange_key, scene)
-        occluders = "scene" if backend.draws_scene else "objects"
+        occluders = "scene" if self._draws_scene else "objects"
         preset = spec.quality.resolved()
         ext = spec.outputs.image_format
         out = []

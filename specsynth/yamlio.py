@@ -187,8 +187,7 @@ _TYPE_TAGS = {"str", "int", "float", "bool", "list", "dict", "none", "tuple"}
 def _is_union_tag(part: str) -> bool:
     """pydantic names union members in error locations (a class, a type, a literal, a tag)."""
     return (
-        part in {"cycles", "mitsuba", "photo", "plugin"}
-        or part in _TYPE_TAGS
+        part in _TYPE_TAGS
         or part[:1].isupper()
         or part.startswith(("function-", "tagged-union", "literal[", "lax-", "json-", "nullable["))
     )
@@ -206,8 +205,8 @@ def _lookup(cur: Any, part) -> tuple[bool, Any]:
 
 
 def _problem(file: str, loc: tuple, message: str, positions: dict, overrides: dict, data: Any) -> Problem:
-    # Drop the tags pydantic inserts for unions (backend -> 'cycles' -> field, 'BuiltinObject',
-    # 'float', "literal['auto']") so the path matches the data the user wrote.
+    # Drop the tags pydantic inserts for unions ('BuiltinObject', 'float', "literal['auto']") so
+    # the path matches the data the user wrote.
     path: list = []
     cur = data
     for part in loc:
@@ -245,6 +244,24 @@ def _message(err: dict) -> str:
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, ") :]
     return msg
+
+
+def _plugin_note(err: dict, data: Any) -> str:
+    """Errors inside ``backend`` come from the installed plugin's own options model: say which."""
+    loc = tuple(err["loc"])
+    if len(loc) < 2 or loc[0] != "backend" or not isinstance(data, dict) or not isinstance(data.get("backend"), dict):
+        return ""
+    name = data["backend"].get("name")
+    if not isinstance(name, str):
+        return ""
+    from .plugins import PluginNotFound, backend_plugin
+
+    try:
+        fields = sorted(backend_plugin(name).options.model_fields)
+    except PluginNotFound:
+        return ""
+    extra = f"; its options: {', '.join(fields)}" if err["type"] == "extra_forbidden" else ""
+    return f" (backend plugin {name!r}{extra})"
 
 
 MAX_SPEC_BYTES = 4 << 20  # a spec is a page of YAML; 4 MiB is far past any real one
@@ -292,7 +309,7 @@ def load_spec(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> 
     except ValidationError as e:
         merged: dict[tuple, Problem] = {}
         for err in e.errors():
-            pr = _problem(file, tuple(err["loc"]), _message(err), positions, over_paths, data)
+            pr = _problem(file, tuple(err["loc"]), _message(err) + _plugin_note(err, data), positions, over_paths, data)
             key = (pr.file, pr.line, pr.col, pr.path)
             if key in merged:  # one mistake, several union members rejecting it: one message
                 prev = merged[key]

@@ -48,7 +48,7 @@ def ruapc_models(tmp_path_factory) -> Path:
 def mitsuba_backend():
     """One warm Mitsuba backend per test module (variant probe and kernel cache are per process)."""
     pytest.importorskip("mitsuba")
-    from backends.mitsuba import MitsubaBackend
+    from specsynth_mitsuba.backend import MitsubaBackend
 
     b = MitsubaBackend({"variant": "auto"}, threads=2)
     yield b

@@ -5,18 +5,25 @@ from __future__ import annotations
 import ctypes
 import os
 
+from typing import Literal
+
 import numpy as np
 
 from specsynth.ir import RenderResult
+from specsynth.plugins import BackendPlugin
+from specsynth.spec import BackendOptions
+
+
+class CrashyOptions(BackendOptions):
+    name: Literal["crashy_backend:PLUGIN"] = "crashy_backend:PLUGIN"
+    crash_seed: int = -1
 
 
 class CrashyBackend:
     name = "crashy"
-    draws_scene = True
 
     def __init__(self, options, *, threads: int = 0):
-        opts = options.options if hasattr(options, "options") else dict(options.get("options", {}))
-        self.crash_seed = int(opts.get("crash_seed", -1))
+        self.crash_seed = CrashyOptions.model_validate(dict(options)).crash_seed
 
     def version(self) -> str:
         return "crashy-1"
@@ -34,3 +41,6 @@ class CrashyBackend:
 
     def close(self) -> None:
         pass
+
+
+PLUGIN = BackendPlugin(name="crashy_backend:PLUGIN", options=CrashyOptions, backend="crashy_backend:CrashyBackend")

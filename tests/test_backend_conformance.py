@@ -45,7 +45,7 @@ def test_conformance(ctx, check):
 
 
 def _broken_variants():
-    from backends.photo import PhotoBackend
+    from specsynth_photo.backend import PhotoBackend
     from specsynth.ir import RenderResult
 
     class UpsideDown(PhotoBackend):  # image rows in OpenGL order

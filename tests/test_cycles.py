@@ -13,9 +13,10 @@ import pytest
 
 from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
 from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import PAPER_PRESETS, CyclesOptions, QualityPreset
+from specsynth.spec import PAPER_PRESETS, QualityPreset
+from specsynth_cycles.options import CyclesOptions
 
-from backends.cycles.settings import blender_intrinsics, path_settings, preset_samples, project
+from specsynth_cycles.settings import blender_intrinsics, path_settings, preset_samples, project
 
 LOW = PAPER_PRESETS["low"]
 # A camera at +Z looking down at the origin (OpenCV: y down in the image = -Y world... any valid R).
@@ -98,7 +99,7 @@ def inst(paths, name, t=(0, 0, 0), s=1.0, material=MaterialIR(), k=None, key=Non
 @pytest.fixture(scope="module")
 def backend():
     pytest.importorskip("bpy")
-    from backends.cycles import CyclesBackend
+    from specsynth_cycles.backend import CyclesBackend
 
     b = CyclesBackend(CyclesOptions(name="cycles", threads=2))
     yield b
@@ -136,7 +137,7 @@ def test_entry_point_resolves():
     pytest.importorskip("bpy")
     from specsynth.backend_api import load_backend
 
-    from backends.cycles import CyclesBackend
+    from specsynth_cycles.backend import CyclesBackend
 
     assert load_backend("cycles") is CyclesBackend
 
@@ -435,7 +436,7 @@ def test_masks_agree_with_annotation_engine(backend, meshes):
 def test_tbb_sizing_narrows_affinity_only_inside():
     import os
 
-    from backends.cycles.settings import tbb_sized_to
+    from specsynth_cycles.settings import tbb_sized_to
 
     full = os.sched_getaffinity(0)
     with tbb_sized_to(1):
@@ -450,8 +451,8 @@ import json, os, sys, time
 from concurrent.futures import ThreadPoolExecutor
 sys.path[:0] = [sys.argv[2], sys.argv[3]]
 from test_cycles import LOW, QualityPreset, _lit_scene, camera
-from backends.cycles import CyclesBackend
-from specsynth.spec import CyclesOptions
+from specsynth_cycles.backend import CyclesBackend
+from specsynth_cycles.options import CyclesOptions
 
 def cores_used():
     b = CyclesBackend(CyclesOptions(name="cycles", threads=1))
@@ -477,8 +478,8 @@ _SESSION_FOLDER = """
 import sys
 from concurrent.futures import ThreadPoolExecutor
 sys.path[:0] = [sys.argv[1]]
-from backends.cycles import CyclesBackend
-from specsynth.spec import CyclesOptions
+from specsynth_cycles.backend import CyclesBackend
+from specsynth_cycles.options import CyclesOptions
 
 def start():
     b = CyclesBackend(CyclesOptions(name="cycles", threads=1))

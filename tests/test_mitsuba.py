@@ -12,7 +12,7 @@ from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScen
 from specsynth.meshio import MeshData, write_mesh
 from specsynth.spec import PAPER_PRESETS, QualityPreset
 
-from backends.mitsuba import mapping
+from specsynth_mitsuba import mapping
 
 # ----------------------------------------------------------------------------- pure mapping
 

@@ -19,7 +19,7 @@ from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScen
 from specsynth.meshio import MeshData
 from specsynth.spec import QualityPreset
 
-from backends.mitsuba import mapping, scene as mscene
+from specsynth_mitsuba import mapping, scene as mscene
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -138,7 +138,7 @@ def test_exr_envmap_with_one_thread_does_not_hang(tmp_path):
 import numpy as np, mitsuba as mi
 mi.set_variant('scalar_rgb')
 mi.Bitmap(np.full((8, 16, 3), 0.5, np.float32)).write({str(exr)!r})
-from backends.mitsuba import MitsubaBackend
+from specsynth_mitsuba.backend import MitsubaBackend
 from specsynth.ir import RenderScene, WorldIR
 b = MitsubaBackend({{'variant': 'auto'}}, threads=1)
 b.load(RenderScene(meshes=(), world=WorldIR(kind='envmap', envmap={str(exr)!r})))
@@ -158,7 +158,7 @@ def test_sky_sun_direction_agrees_with_cycles(backend):
     """Azimuth 90 puts the sky's brightest horizon towards -X in both backends (IR: azimuth 0 =
     +Y, counter-clockwise seen from above); before the fix Cycles put it towards +X."""
     pytest.importorskip("bpy")
-    from backends.cycles import CyclesBackend
+    from specsynth_cycles.backend import CyclesBackend
 
     if not backend._has_plugin("sunsky"):
         pytest.skip("this Mitsuba build has no sunsky")

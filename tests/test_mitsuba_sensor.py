@@ -10,8 +10,8 @@ from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScen
 from specsynth.meshio import MeshData, write_mesh
 from specsynth.spec import QualityPreset
 
-from backends.mitsuba import mapping
-from backends.mitsuba.sensor import PINHOLE, local_coefficients
+from specsynth_mitsuba import mapping
+from specsynth_mitsuba.sensor import PINHOLE, local_coefficients
 
 # ----------------------------------------------------------------------------- pure numbers
 

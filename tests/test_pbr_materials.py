@@ -57,12 +57,12 @@ def _sun(direction_to_sun) -> LightIR:
 def backend(request):
     if request.param == "cycles":
         pytest.importorskip("bpy")
-        from backends.cycles import CyclesBackend
+        from specsynth_cycles.backend import CyclesBackend
 
         b = CyclesBackend({"name": "cycles"}, threads=2)
     else:
         pytest.importorskip("mitsuba")
-        from backends.mitsuba import MitsubaBackend
+        from specsynth_mitsuba.backend import MitsubaBackend
 
         b = MitsubaBackend({"variant": "auto"}, threads=2)
     yield b
@@ -165,7 +165,7 @@ def test_mitsuba_denoise_brings_a_noisy_render_near_the_reference(tmp_path):
     1024 spp reference than 1 spp alone, as Cycles' OIDN is."""
     pytest.importorskip("mitsuba")
     pytest.importorskip("pyoidn")
-    from backends.mitsuba import MitsubaBackend
+    from specsynth_mitsuba.backend import MitsubaBackend
 
     floor = MeshInstance("f", _quad(tmp_path, "floor", 1.5), "floor", as_tuple(np.eye(4)),
                          MaterialIR(base_color=(0.7, 0.5, 0.3), specular=0.3, roughness=0.6, use_vertex_colors=False))

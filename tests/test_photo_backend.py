@@ -7,12 +7,13 @@ import pytest
 from PIL import Image
 
 pytest.importorskip("pyrender")
-from backends.photo import ALGORITHM_VERSION, PhotoBackend  # noqa: E402
-from backends.photo.backgrounds import BackgroundError, BackgroundPool, hdri_paths, skimage_photo_names  # noqa: E402
+from specsynth_photo.backend import ALGORITHM_VERSION, PhotoBackend  # noqa: E402
+from specsynth_photo.backgrounds import BackgroundError, BackgroundPool, hdri_paths, skimage_photo_names  # noqa: E402
 from specsynth.backend_api import load_backend  # noqa: E402
 from specsynth.ir import CameraIR  # noqa: E402
 from specsynth.meshio import read_mesh  # noqa: E402
-from specsynth.spec import PAPER_PRESETS, PhotoOptions  # noqa: E402
+from specsynth.spec import PAPER_PRESETS  # noqa: E402
+from specsynth_photo.options import PhotoOptions  # noqa: E402
 from specsynth.testing import conformance as conf  # noqa: E402
 
 LOW = PAPER_PRESETS["low"]
@@ -68,7 +69,7 @@ def test_builtin_backgrounds_are_offline_photos_and_hdris():
     for i, src in enumerate(pool.sources):
         img = pool._get(src)
         rng = np.random.default_rng(i)
-        from backends.photo.backgrounds import _crop_photo, _pano_view
+        from specsynth_photo.backgrounds import _crop_photo, _pano_view
 
         fn = _pano_view if src.kind == "pano" else _crop_photo
         a = fn(img, 48, 36, rng)

@@ -89,9 +89,9 @@ def test_sigkill_then_resume_is_byte_identical(spec_file, reference, tmp_path, k
 
 
 def test_crashing_renderer_is_retried_then_reported(spec_file, tmp_path):
-    g0 = compile_spec(load_spec(spec_file, ["backend.name=crashy_backend:CrashyBackend"]))
+    g0 = compile_spec(load_spec(spec_file, ["backend.name=crashy_backend:PLUGIN"]))
     victim = g0.render_job(1, 1)
-    overrides = ["backend.name=crashy_backend:CrashyBackend", f"backend.options={{crash_seed: {victim.seed}}}"]
+    overrides = ["backend.name=crashy_backend:PLUGIN", f"backend.crash_seed={victim.seed}"]
     g = compile_spec(load_spec(spec_file, overrides))
     s = build(g, tmp_path / "crash", jobs=2, retries=1)
     failed = [f for f in s.failures if f["stage"] == "render"]

@@ -204,7 +204,7 @@ def _masks_agree_with_cycles_rerender(byo: Path, out: Path) -> None:
     from specsynth.tasks import BuildContext, Worker
     from specsynth.yamlio import load_spec
     from specsynth.ir import CameraIR, as_tuple
-    from backends.cycles import CyclesBackend
+    from specsynth_cycles.backend import CyclesBackend
     from PIL import Image
 
     graph = compile_spec(load_spec(byo / "spec.yaml", ["arrangements.count=1", "cameras.per_arrangement=2"]))

@@ -9,7 +9,8 @@ import pytest
 
 from specsynth import scenes
 from specsynth.meshio import read_mesh
-from specsynth.scenes import SceneError, procedural
+from specsynth.meshfiles import primitives as procedural
+from specsynth.scenes import SceneError
 from specsynth.spec import SceneRef
 
 

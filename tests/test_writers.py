@@ -23,7 +23,7 @@ from specsynth.meshio import MeshData, write_mesh
 from specsynth.records import ImageRecord, InstanceGT
 from specsynth.spec import DatasetSpec
 from specsynth.writers import write_outputs
-from specsynth.writers import bop as bop_mod
+from specsynth.writers import dataset as dataset_mod
 from specsynth.writers.images import (
     DepthOverflowError,
     encode_depth,
@@ -517,7 +517,7 @@ def test_outputs_switches(dataset, tmp_path):
     rgb = pq.read_table(tmp_path / "parquet" / "images.parquet").column("rgb").to_pylist()
     assert all((tmp_path / p).is_file() for p in rgb)
     assert counts["parquet_instances"] == sum(len(r.instances) for r, _ in images)
-    assert bop_mod.chunk_and_im_id(2500, 1000) == (2, 500)
+    assert dataset_mod.chunk_and_im_id(2500, 1000) == (2, 500)
 
 
 def test_build_without_masks_gives_box_only_coco(dataset, tmp_path):

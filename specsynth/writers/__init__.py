@@ -11,7 +11,8 @@ from typing import Sequence
 
 from ..assets import ObjectAsset
 from ..spec import DatasetSpec
-from .bop import ImageEntry, sorted_images, write_bop
+from .bop import write_bop
+from .dataset import ImageEntry, sorted_images
 from .coco import all_visible_rles, write_coco
 from .parquet import write_parquet
 

@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from .bop import write_if_changed
+from .dataset import write_if_changed
 
 FIELDS = ("asset", "name", "author", "copyright", "licence", "source")
 

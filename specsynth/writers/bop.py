@@ -15,22 +15,29 @@ Merge semantics, so that an interrupted or repeated merge is harmless:
 from __future__ import annotations
 
 import json
-import os
 import re
-import shutil
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from ..assets import ObjectAsset
-from ..conventions import m_to_mm
-from ..meshio import MeshData, atomic_write_bytes, new_temp_beside, read_mesh
+from ..meshio import MeshData, read_mesh
 from ..records import ImageRecord
 from ..spec import Intrinsics, Metadata, Outputs
+from .dataset import (
+    ImageEntry,
+    check_image,
+    chunk_and_im_id,
+    place_file,
+    plain,
+    rotation_list,
+    sorted_images,
+    vec_mm,
+    write_if_changed,
+)
 
-ImageEntry = tuple[ImageRecord, Path]  # record + the store folder holding its files
 
 # Subfolders of a chunk that this writer owns, with the file-name patterns it may delete there.
 _IMAGE_NAME = re.compile(r"^\d{6}\.(jpg|png|exr)$")
@@ -48,52 +55,18 @@ _MODEL_NAME = re.compile(r"^obj_\d{6}\.\w+$")
 _TMP_NAME = re.compile(r"^\..+\.tmp$")
 _NOTHING = re.compile(r"(?!)")  # for folders where only temp files are ours to delete
 
-# A rotation further than this from orthonormal is a corrupt record, not float noise.
-ORTHONORMAL_TOL = 1e-5
 
 
 # --------------------------------------------------------------------------- ids and paths
 
 
-def chunk_and_im_id(index: int, chunk_size: int) -> tuple[int, int]:
-    return index // chunk_size, index % chunk_size
-
-
-def image_relpaths(split: str, rec: ImageRecord, chunk_size: int) -> dict[str, str | None]:
-    """Paths (relative to ``<out>``) of an image's files in the BOP layout."""
-    chunk, im_id = chunk_and_im_id(rec.index, chunk_size)
-    base = f"bop/{split}/{chunk:06d}"
-    return {
-        "rgb": f"{base}/rgb/{im_id:06d}{Path(rec.rgb_file).suffix.lower()}",
-        "depth": f"{base}/depth/{im_id:06d}.png" if rec.depth_file else None,
-        "exr": f"{base}/exr/{im_id:06d}.exr" if rec.exr_file else None,
-    }
-
-
 # --------------------------------------------------------------------------- JSON
-
-
-def _plain(x: Any) -> Any:
-    """numpy scalars/arrays -> Python, so json output does not depend on where a number came from."""
-    if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x)
-    return x
 
 
 def bop_json_bytes(content: dict | list) -> bytes:
     """The layout of ``bop_toolkit_lib.inout.save_json``: one top-level entry per line, keys in
     numeric order, inner keys sorted. Floats use repr, so they round-trip exactly."""
-    content = _plain(content)
+    content = plain(content)
 
     def dumps(v: Any) -> str:
         return json.dumps(v, sort_keys=True, allow_nan=False)
@@ -113,54 +86,6 @@ def bop_json_bytes(content: dict | list) -> bytes:
 # --------------------------------------------------------------------------- idempotent file placement
 
 
-def write_if_changed(path: Path, data: bytes) -> bool:
-    """Atomic write that skips identical content, so re-merging keeps inodes and mtimes."""
-    path = Path(path)
-    try:
-        if path.stat().st_size == len(data) and path.read_bytes() == data:
-            return False
-    except FileNotFoundError:
-        pass
-    atomic_write_bytes(path, data)
-    return True
-
-
-def place_file(src: Path, dst: Path) -> bool:
-    """Copy ``src`` to ``dst`` atomically, keeping its mtime; False when ``dst`` is already that
-    copy (same size and mtime: a later edit of ``dst`` changes them and is repaired here)."""
-    src, dst = Path(src), Path(dst)
-    if not src.is_file():
-        raise FileNotFoundError(f"store file missing: {src}")
-    st = src.stat()
-    if dst.is_file() and not dst.is_symlink():
-        dt = dst.stat()
-        if dt.st_size == st.st_size and dt.st_mtime_ns == st.st_mtime_ns and dt.st_ino != st.st_ino:
-            return False
-    fd, tmp = new_temp_beside(dst)
-    try:
-        with os.fdopen(fd, "wb") as out, open(src, "rb") as inp:
-            if not _reflink(inp.fileno(), out.fileno()):
-                shutil.copyfileobj(inp, out, 1 << 20)
-        os.utime(tmp, ns=(st.st_atime_ns, st.st_mtime_ns))
-        os.replace(tmp, dst)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return True
-
-
-def _reflink(src_fd: int, dst_fd: int) -> bool:
-    """Share the source's blocks copy-on-write (btrfs, XFS); False where unsupported (ext4)."""
-    import fcntl
-
-    try:
-        fcntl.ioctl(dst_fd, 0x40049409, src_fd)  # FICLONE
-        return True
-    except OSError:
-        return False
-
-
 def _remove_unexpected(folder: Path, pattern: re.Pattern, keep: set[str]) -> int:
     """Delete our own stale files (and temp files of an interrupted merge) from ``folder``."""
     if not folder.is_dir():
@@ -176,42 +101,6 @@ def _remove_unexpected(folder: Path, pattern: re.Pattern, keep: set[str]) -> int
 # --------------------------------------------------------------------------- validation
 
 
-def _rotation(R: Sequence[Sequence[float]], what: str) -> list[float]:
-    a = np.asarray(R, dtype=np.float64)
-    if a.shape != (3, 3) or not np.isfinite(a).all():
-        raise ValueError(f"{what}: rotation must be a finite 3x3 matrix, got shape {a.shape}")
-    err = float(np.abs(a @ a.T - np.eye(3)).max())
-    if err > ORTHONORMAL_TOL or np.linalg.det(a) < 0:
-        raise ValueError(f"{what}: rotation is not orthonormal (|R R^T - I| = {err:.2e}, det {np.linalg.det(a):.3f})")
-    return a.reshape(-1).tolist()
-
-
-def _vec_mm(t: Sequence[float], what: str) -> list[float]:
-    a = np.asarray(t, dtype=np.float64)
-    if a.shape != (3,) or not np.isfinite(a).all():
-        raise ValueError(f"{what}: translation must be 3 finite numbers, got {t!r}")
-    return m_to_mm(a).tolist()
-
-
-def _check_image(rec: ImageRecord) -> None:
-    n = len(rec.instances)
-    if rec.mask_files and len(rec.mask_files) != n:
-        raise ValueError(f"image {rec.index}: {len(rec.mask_files)} mask files for {n} instances")
-    if rec.mask_visib_files and len(rec.mask_visib_files) != n:
-        raise ValueError(f"image {rec.index}: {len(rec.mask_visib_files)} mask_visib files for {n} instances")
-    if np.asarray(rec.K).shape != (3, 3):
-        raise ValueError(f"image {rec.index}: K must be 3x3")
-
-
-def sorted_images(images: Iterable[ImageEntry]) -> list[ImageEntry]:
-    """Images in index order; duplicates are a merge bug that would silently overwrite files."""
-    out = sorted(((r, Path(s)) for r, s in images), key=lambda e: e[0].index)
-    for (a, _), (b, _) in zip(out, out[1:]):
-        if a.index == b.index:
-            raise ValueError(f"two render records for image index {a.index}")
-    return out
-
-
 # --------------------------------------------------------------------------- per-chunk content
 
 
@@ -219,16 +108,16 @@ def scene_camera_entry(rec: ImageRecord) -> dict[str, Any]:
     return {
         "cam_K": np.asarray(rec.K, dtype=np.float64).reshape(-1).tolist(),
         "depth_scale": float(rec.depth_scale),
-        "cam_R_w2c": _rotation(rec.R_w2c, f"image {rec.index} R_w2c"),
-        "cam_t_w2c": _vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
+        "cam_R_w2c": rotation_list(rec.R_w2c, f"image {rec.index} R_w2c"),
+        "cam_t_w2c": vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
     }
 
 
 def scene_gt_entry(rec: ImageRecord) -> list[dict[str, Any]]:
     return [
         {
-            "cam_R_m2c": _rotation(g.R_m2c, f"image {rec.index} gt {i} R_m2c"),
-            "cam_t_m2c": _vec_mm(g.t_m2c, f"image {rec.index} gt {i} t_m2c"),
+            "cam_R_m2c": rotation_list(g.R_m2c, f"image {rec.index} gt {i} R_m2c"),
+            "cam_t_m2c": vec_mm(g.t_m2c, f"image {rec.index} gt {i} t_m2c"),
             "obj_id": int(g.obj_id),
         }
         for i, g in enumerate(rec.instances)
@@ -392,7 +281,7 @@ def write_bop(
 
     by_chunk: dict[int, list[ImageEntry]] = defaultdict(list)
     for rec, store in images:
-        _check_image(rec)
+        check_image(rec)
         by_chunk[chunk_and_im_id(rec.index, outputs.chunk_size)[0]].append((rec, store))
     categories = coco_mod.categories(models, dataset_name)
 

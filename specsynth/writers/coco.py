@@ -29,7 +29,7 @@ from pycocotools import mask as mask_utils
 from ..assets import ObjectAsset
 from ..records import ImageRecord
 from ..spec import Metadata
-from .bop import ImageEntry, _plain, chunk_and_im_id, image_relpaths, sorted_images, write_if_changed
+from .dataset import ImageEntry, chunk_and_im_id, image_relpaths, plain, sorted_images, write_if_changed
 
 IGNORE_VISIB_FRACT = 0.1  # the toolkit's threshold for "ignore" ground truth
 
@@ -181,7 +181,7 @@ def chunk_document(
 
 
 def coco_json_bytes(doc: dict[str, Any]) -> bytes:
-    return json.dumps(_plain(doc), sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    return json.dumps(plain(doc), sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 
 def write_coco(

@@ -16,13 +16,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from .bop import (
+from .dataset import (
     ImageEntry,
-    _rotation,
-    _vec_mm,
     chunk_and_im_id,
     image_relpaths,
+    rotation_list,
     sorted_images,
+    vec_mm,
     write_if_changed,
 )
 from .coco import visible_rles
@@ -141,8 +141,8 @@ def write_parquet(
                 "backend_version": rec.backend_version, "quality": rec.quality, "seed": rec.seed,
                 "width": rec.width, "height": rec.height,
                 "K": np.asarray(rec.K, dtype=np.float64).reshape(-1).tolist(),
-                "R_w2c": _rotation(rec.R_w2c, f"image {rec.index} R_w2c"),
-                "t_w2c_mm": _vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
+                "R_w2c": rotation_list(rec.R_w2c, f"image {rec.index} R_w2c"),
+                "t_w2c_mm": vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
                 "depth_scale": float(rec.depth_scale), "n_instances": len(rec.instances),
                 **paths,
             }
@@ -154,8 +154,8 @@ def write_parquet(
                 {
                     "chunk": chunk, "im_id": im_id, "index": rec.index, "gt_id": gt_id,
                     "obj_id": g.obj_id, "inst": g.inst,
-                    "R_m2c": _rotation(g.R_m2c, f"image {rec.index} gt {gt_id} R_m2c"),
-                    "t_m2c_mm": _vec_mm(g.t_m2c, f"image {rec.index} gt {gt_id} t_m2c"),
+                    "R_m2c": rotation_list(g.R_m2c, f"image {rec.index} gt {gt_id} R_m2c"),
+                    "t_m2c_mm": vec_mm(g.t_m2c, f"image {rec.index} gt {gt_id} t_m2c"),
                     "bbox_obj": [int(v) for v in g.bbox_obj],
                     "bbox_visib": [int(v) for v in g.bbox_visib],
                     "px_count_all": g.px_count_all, "px_count_valid": g.px_count_valid,

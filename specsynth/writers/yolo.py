@@ -25,7 +25,7 @@ from typing import Sequence
 import yaml
 
 from ..qa import BopImage, list_images
-from .bop import place_file, write_if_changed
+from .dataset import place_file, write_if_changed
 from .coco import coco_box
 
 DEFAULT_MIN_VISIB = 0.1  # the COCO writer's "ignore" threshold: below it a box teaches noise

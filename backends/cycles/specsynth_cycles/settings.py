@@ -13,20 +13,18 @@ from typing import Any, Iterator
 import numpy as np
 
 from specsynth.ir import CameraIR
-from specsynth.spec import CyclesOptions, QualityPreset
+from specsynth.spec import QualityPreset
+
+from .options import CyclesOptions
 
 
 def coerce_options(options: Any) -> CyclesOptions:
-    """Accept the spec's ``CyclesOptions``, a plain dict (plugin pass-through) or None."""
+    """Accept the spec's ``CyclesOptions``, a plain dict or None."""
     if options is None:
-        return CyclesOptions(name="cycles")
+        return CyclesOptions()
     if isinstance(options, CyclesOptions):
         return options
-    if isinstance(options, dict):
-        return CyclesOptions(**{"name": "cycles", **options})
-    # Any other object with the same fields (e.g. the spec's PluginOptions or a test double).
-    fields = {k: getattr(options, k) for k in CyclesOptions.model_fields if k != "name" and hasattr(options, k)}
-    return CyclesOptions(name="cycles", **fields)
+    return CyclesOptions.model_validate({**dict(options), "name": "cycles"})
 
 
 def resolve_threads(options: CyclesOptions, threads: int) -> int:

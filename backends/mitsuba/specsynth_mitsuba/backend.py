@@ -13,11 +13,12 @@ from specsynth.colour import check_finite, linear_to_srgb8
 from specsynth.conventions import cam_to_world, opencv_to_mitsuba_c2w
 from specsynth.ir import CameraIR, RenderResult, RenderScene
 from specsynth.meshio import MeshData, read_mesh
-from specsynth.spec import MitsubaOptions, QualityPreset
+from specsynth.spec import QualityPreset
 
 from . import mapping, scene as scene_mod
 from .sensor import PINHOLE, register_pinhole_sensor
 from .textures import register_product_texture
+from .options import MitsubaOptions
 from .variant import choose_variant
 
 
@@ -39,18 +40,14 @@ EXACT_PX = 1e-3
 
 def _options(options: Any) -> MitsubaOptions:
     if options is None:
-        return MitsubaOptions(name="mitsuba")
+        return MitsubaOptions()
     if isinstance(options, MitsubaOptions):
         return options
-    if isinstance(options, dict):
-        return MitsubaOptions(**{"name": "mitsuba", **options})
-    # PluginOptions-like objects carry their settings in .options
-    return MitsubaOptions(**{"name": "mitsuba", **dict(getattr(options, "options", {}) or {})})
+    return MitsubaOptions.model_validate({**dict(options), "name": "mitsuba"})
 
 
 class MitsubaBackend:
     name: ClassVar[str] = "mitsuba"
-    draws_scene: ClassVar[bool] = True
 
     def __init__(self, options: Any = None, *, threads: int = 0) -> None:
         self.options = _options(options)

@@ -1,4 +1,4 @@
-"""Procedural scene geometry (boxes, planes, cylinders) with UVs in metres, and small geometry helpers.
+"""Primitive meshes (boxes, planes, cylinders) for scenes and built-in objects, with UVs in metres, and small geometry helpers.
 
 UVs are in metres of surface (1 UV unit = 1 m) so a texture tiles at the same physical scale on
 every face and every primitive; a material's ``uv_scale`` then sets repeats per metre.

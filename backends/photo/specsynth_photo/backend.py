@@ -2,7 +2,7 @@
 EGL) under random lights and composited over random real photographs, from the same cameras as
 the PBR images.
 
-Only the dataset objects are drawn (``draws_scene = False``): the scene's stage geometry, lights
+Only the dataset objects are drawn (capability ``draws_scene=False``): the scene's stage geometry, lights
 and world are ignored, the photograph stands in for them. Everything random in one image (the
 background and its crop, the lights, the augmentation) derives from the ``seed`` passed to
 ``render``; nothing depends on what was rendered before.
@@ -21,11 +21,12 @@ from specsynth.augment import augment
 from specsynth.colour import linear_to_srgb
 from specsynth.conventions import cam_to_world, opencv_to_opengl_c2w
 from specsynth.ir import CameraIR, MeshInstance, RenderResult, RenderScene
-from specsynth.spec import PhotoOptions, QualityPreset
+from specsynth.spec import QualityPreset
 
 from . import gl  # first: it selects the EGL platform before OpenGL is imported
 from .backgrounds import BackgroundError, BackgroundPool
 from .gl import pyrender
+from .options import PhotoOptions
 from OpenGL.error import GLError  # noqa: E402  (after .gl, see above)
 
 __all__ = ["PhotoBackend", "BackgroundError"]
@@ -65,13 +66,12 @@ def _package_version(name: str) -> str | None:
 
 class PhotoBackend:
     name: ClassVar[str] = "photo"
-    draws_scene: ClassVar[bool] = False
 
     def __init__(self, options: Any = None, *, threads: int = 0) -> None:
         if options is None:
             options = {"name": "photo"}
         if isinstance(options, dict):
-            options = PhotoOptions.model_validate({"name": "photo", **options})
+            options = PhotoOptions.model_validate({**options, "name": "photo"})
         if not isinstance(options, PhotoOptions):
             raise TypeError(f"photo backend options must be PhotoOptions or a dict, got {type(options).__name__}")
         self.options = options

@@ -74,7 +74,6 @@ def _remove_session_folder_at_exit(bpy) -> None:
 
 class CyclesBackend:
     name: ClassVar[str] = "cycles"
-    draws_scene: ClassVar[bool] = True
 
     def __init__(self, options: Any = None, *, threads: int = 0) -> None:
         self.options = coerce_options(options)

@@ -1,0 +1,24 @@
+"""The ``backend:`` block for Mitsuba 3 (pydantic only: never imports Mitsuba)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from specsynth.spec import BackendOptions
+
+
+class MitsubaOptions(BackendOptions):
+    name: Literal["mitsuba"] = "mitsuba"
+    variant: Literal["auto", "llvm_ad_rgb", "scalar_rgb", "cuda_ad_rgb"] = "auto"
+    sampler: Literal["independent", "ldsampler", "stratified"] = Field(
+        "stratified",
+        description="Mitsuba sampler. stratified (jittered, needs a perfect square: the presets' 1/36/225 are) "
+        "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k.",
+    )
+    match_cycles_bsdf: bool = Field(
+        True,
+        description="Calibrate Mitsuba's principled BSDF to Blender's per-bounce albedo (dielectrics), so the "
+        "two backends render the same scene alike; false = Mitsuba's own principled.",
+    )

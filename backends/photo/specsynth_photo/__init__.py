@@ -1,0 +1,23 @@
+"""The photo baseline (the paper's BL images) as a specsynth backend plugin: dataset objects
+rasterised with OpenGL over real photographs. Importing this package does not import OpenGL."""
+
+from specsynth.plugins import BackendPlugin, Capabilities
+
+from .options import PhotoOptions
+
+PLUGIN = BackendPlugin(
+    name="photo",
+    options=PhotoOptions,
+    backend="specsynth_photo.backend:PhotoBackend",
+    capabilities=Capabilities(
+        # Only the dataset objects are drawn: the annotation engine then uses them alone as occluders.
+        draws_scene=False, denoise=False, gpu=False,
+        material_channels=frozenset({"base_color"}),
+        quality="rasterised: no samples; the preset is ignored",
+    ),
+    distributions=("pyrender", "scikit-image"),
+    cost=(0.05, 0.0),
+    install_hint="pip install -e backends/photo  and apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri",
+)
+
+__all__ = ["PLUGIN", "PhotoOptions"]

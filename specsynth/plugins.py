@@ -1,0 +1,141 @@
+"""Plugins: render backends and executors, found through entry points (fsspec-style).
+
+A backend is a distribution that registers a :class:`BackendPlugin` in the ``specsynth.backends``
+entry-point group. The plugin object is cheap to import (pydantic options and metadata only): the
+spec is validated with its options model and the compiler keys renders with its distributions'
+versions, all without importing the renderer. The renderer class is imported only where a render
+happens, through :meth:`BackendPlugin.load_class`.
+
+The core names no backend: everything it needs to know about one is in its plugin object.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any
+
+BACKEND_GROUP = "specsynth.backends"
+EXECUTOR_GROUP = "specsynth.executors"
+
+
+class PluginNotFound(RuntimeError):
+    pass
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a backend can do; the core and ``validate`` read this instead of backend names."""
+
+    draws_scene: bool = True  # False: draws only the dataset objects (the photo baseline)
+    denoise: bool = False  # has a denoiser; False also for renderers without sampling noise
+    gpu: bool = False
+    material_channels: frozenset[str] = frozenset({"base_color"})
+    quality: str = ""  # one line: how the paper's presets map onto this renderer
+
+
+@dataclass(frozen=True)
+class BackendPlugin:
+    name: str
+    options: type  # a subclass of specsynth.spec.BackendOptions with ``name: Literal[<name>]``
+    backend: str  # "module:Class" of the renderer, imported only where a render happens
+    capabilities: Capabilities = Capabilities()
+    distributions: tuple[str, ...] = ()  # whose versions change the pixels (read from metadata)
+    revision: int = 1  # bump when the plugin's own code changes pixels for the same inputs
+    cost: tuple[float, float] = (1.0, 0.1)  # estimated seconds per render: fixed + per sample
+    install_hint: str = ""  # what to install when ``backend`` cannot be imported
+    # `specsynth bench`: extra settings per quality level (label suffix, option updates), and
+    # boolean options whose saving is measured by rendering the same views with and without.
+    bench_variants: tuple[tuple[str, dict[str, Any]], ...] = ()
+    bench_toggles: tuple[tuple[str, str], ...] = field(default=())
+
+    def load_class(self) -> type:
+        mod, _, attr = self.backend.partition(":")
+        try:
+            return getattr(importlib.import_module(mod), attr)
+        except ImportError as e:
+            hint = self.install_hint or f"install the package that provides the {self.name!r} backend"
+            raise PluginNotFound(f"backend {self.name!r} cannot be imported ({e}); {hint}") from e
+
+    def fingerprint(self) -> str:
+        """The plugin's name and the versions of what it renders with; part of every render key."""
+        dist = _plugin_distribution(BACKEND_GROUP, self.name)
+        parts = [f"{d} {_dist_version(d)}" for d in (dist, *self.distributions) if d]
+        parts.append(f"specsynth {_dist_version('specsynth')}")
+        if self.revision > 1:
+            parts.append(f"backend rev {self.revision}")
+        return f"{self.name} ({'; '.join(parts)})"
+
+
+def _dist_version(name: str) -> str:
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return "not-installed"
+
+
+def _plugin_distribution(group: str, name: str) -> str | None:
+    for ep in metadata.entry_points(group=group):
+        if ep.name == name and ep.dist is not None:
+            return ep.dist.name
+    return None
+
+
+def _kind(group: str) -> str:
+    return group.split(".")[-1][:-1]
+
+
+def _load_entry_point(group: str, name: str) -> Any:
+    if ":" in name:
+        # "package.module:attribute": a plugin used without installing it (tests, experiments).
+        mod, _, attr = name.partition(":")
+        try:
+            return getattr(importlib.import_module(mod), attr)
+        except (ImportError, AttributeError) as e:
+            raise PluginNotFound(f"cannot load {name!r}: {e}") from e
+    eps = metadata.entry_points(group=group)
+    matches = [ep for ep in eps if ep.name == name]
+    if not matches:
+        known = sorted(ep.name for ep in eps)
+        raise PluginNotFound(
+            f"no {_kind(group)} named {name!r} is installed (installed: {', '.join(known) or 'none'}); "
+            f"install the package that provides it, e.g. pip install specsynth-{name} "
+            f"(in this repository: pip install -e backends/{name})"
+        )
+    try:
+        return matches[0].load()
+    except ImportError as e:
+        dist = matches[0].dist.name if matches[0].dist is not None else f"the package that provides {name!r}"
+        raise PluginNotFound(f"{_kind(group)} {name!r} cannot be imported ({e}); reinstall {dist}") from e
+
+
+def backend_plugin(name: str) -> BackendPlugin:
+    found = _load_entry_point(BACKEND_GROUP, name)
+    if not isinstance(found, BackendPlugin):
+        raise PluginNotFound(f"{name!r} is not a specsynth BackendPlugin (got {type(found).__name__})")
+    return found
+
+
+def load_backend(name: str) -> type:
+    """The renderer class of backend ``name`` (imports the renderer)."""
+    return backend_plugin(name).load_class()
+
+
+def load_executor(name: str) -> type:
+    return _load_entry_point(EXECUTOR_GROUP, name)
+
+
+def available_backends() -> list[str]:
+    return sorted(ep.name for ep in metadata.entry_points(group=BACKEND_GROUP))
+
+
+def installed_backend_plugins() -> list[BackendPlugin]:
+    """Every installed plugin that loads (a broken one is skipped, not fatal to listing)."""
+    out = []
+    for name in available_backends():
+        try:
+            out.append(backend_plugin(name))
+        except PluginNotFound:
+            continue
+    return out
