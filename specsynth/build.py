@@ -272,6 +272,115 @@ def render_chunk(graph: JobGraph, n: int, workers: int) -> int:
     return max(1, min(RENDER_CHUNK, -(-n // workers)))
 
 
+class _Pipeline:
+    """Which calls follow which: an arrangement's view group is queued when it has settled, its
+    render groups when its views are known. Holds the bookkeeping of one build's run."""
+
+    def __init__(self, graph: JobGraph, store: Store, summary: BuildSummary, prog, wkey: str, workers: int,
+                 until: str):
+        from .tasks import task_arrange, task_renders, task_views
+
+        self.tasks = {"arrange": task_arrange, "view": task_views, "render": task_renders}
+        self.graph, self.store, self.summary, self.prog = graph, store, summary, prog
+        self.wkey, self.workers, self.until = wkey, workers, until
+        self.arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
+        self.views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
+        self.spans: list[tuple[str, str, int, int, float, float]] = []  # stage, call, jobs, pid, start, seconds
+        self.cached_render: set[str] = set()
+        self.bars = {s: prog.add_task(s, total=0) for s in STAGES}
+
+    def advance(self, stage: str, n: int) -> None:
+        self.prog.advance(self.bars[stage], n)
+
+    def first_calls(self) -> list[Call]:
+        st, sv = self.summary.stages["arrange"], self.summary.stages["view"]
+        st.total, sv.total = len(self.arr_jobs), self.graph.n_views
+        self.prog.update(self.bars["arrange"], total=st.total)
+        self.prog.update(self.bars["view"], total=sv.total)
+        calls: list[Call] = []
+        for i, (a, _, _) in enumerate(self.arr_jobs):
+            if self.store.has("arrange", a.key):
+                st.cached += 1
+                self.advance("arrange", 1)
+                calls += self.view_calls(i)
+            else:
+                calls.append(Call(self.tasks["arrange"], (self.wkey, a), "arrange", a.id, 1, i))
+        return calls
+
+    def view_calls(self, i: int) -> list[Call]:
+        a, views, _ = self.arr_jobs[i]
+        todo = [v for v in views if not self.store.has("view", v.key)]
+        self.summary.stages["view"].cached += len(views) - len(todo)
+        self.advance("view", len(views) - len(todo))
+        if not todo:
+            return self.render_calls(i)
+        self.views_left[i] = len(todo)
+        return [Call(self.tasks["view"], (self.wkey, a.key, todo), "view", a.id, len(todo), i)]
+
+    def render_calls(self, i: int) -> list[Call]:
+        a, views, renders = self.arr_jobs[i]
+        summary, sr = self.summary, self.summary.stages["render"]
+        todo, cached = [], 0
+        for v, r in zip(views, renders):
+            if not self.store.has("view", v.key):  # its view job failed
+                continue
+            vrec = self.store.load("view", v.key)
+            summary.cameras_rejected += vrec["tries"] - (1 if vrec["accepted"] else 0)
+            summary.rejected_seconds += vrec["rejected_seconds"]
+            if not vrec["accepted"]:
+                summary.views_dropped += 1
+                continue
+            summary.views_accepted += 1
+            if self.until == "view":  # (the camera bookkeeping above is still wanted)
+                continue
+            sr.total += 1
+            if self.store.has("render", r.key):
+                cached += 1
+                self.cached_render.add(r.key)
+            else:
+                todo.append((v, r))
+        sr.cached += cached
+        self.prog.update(self.bars["render"], total=sr.total)
+        self.advance("render", cached)
+        # Split an arrangement's renders between the workers (each loads the scene once):
+        # otherwise the last arrangement's group runs alone at the end of the build.
+        size = render_chunk(self.graph, len(todo), self.workers)
+        chunks = [todo[k:k + size] for k in range(0, len(todo), size)]
+        return [Call(self.tasks["render"], (self.wkey, a.key, c), "render", _group_id(c[0]), len(c), i) for c in chunks]
+
+    def _view_resolved(self, i: int, n: int) -> list[Call]:
+        self.views_left[i] -= n
+        return self.render_calls(i) if self.views_left[i] == 0 else []
+
+    def on_done(self, c: Call, res) -> list[Call]:
+        seconds, _, (pid, start) = res
+        self.spans.append((c.stage, c.ident, c.n, pid, start, seconds))
+        stage = self.summary.stages[c.stage]
+        stage.ran += c.n
+        stage.seconds += seconds
+        self.advance(c.stage, c.n)
+        if c.stage == "arrange":
+            return self.view_calls(c.arr)
+        return self._view_resolved(c.arr, c.n) if c.stage == "view" else []
+
+    def on_error(self, c: Call, e: BaseException) -> list[Call]:
+        self.summary.stages[c.stage].failed += c.n
+        self.summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}"})
+        return self._view_resolved(c.arr, c.n) if c.stage == "view" else []
+
+    def record_timing(self, out: Path) -> None:
+        summary, spans = self.summary, self.spans
+        summary.workers = self.workers
+        t_first = min((sp[4] for sp in spans), default=0.0)
+        if spans:
+            summary.run_seconds = max(sp[4] + sp[5] for sp in spans) - t_first
+            busy = sum(sp[5] for sp in spans)
+            summary.utilisation = round(busy / (self.workers * summary.run_seconds), 3) if summary.run_seconds else 1.0
+        # Always written: a rebuild that ran nothing must not leave the previous build's timeline.
+        write_json(out / ".specsynth" / "trace.json", _trace(spans, t_first), indent=None)
+        summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))
+
+
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
           console=None, retries: int = 2, until: str = "merge", threads: int | None = None) -> BuildSummary:
     """Run the graph; ``until="view"`` stops after the camera stage (used by ``bench``).
@@ -280,7 +389,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     its images rendered as soon as its cameras are known. Stage seconds in the summary are
     worker-seconds (summed over workers); ``wall_seconds`` is the whole build.
     """
-    from .tasks import BuildContext, task_arrange, task_renders, task_views
+    from .tasks import BuildContext
 
     t_build = time.perf_counter()
     out = Path(out)
@@ -291,140 +400,54 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         store = Store(out)
         store.clean_tmp()
         ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads or 0)
-        wkey = str(ctx.out)  # which worker state a task uses (one Dask worker may serve several builds)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         workers = max(1, getattr(ex, "workers", jobs))
-        window = 2 * workers
-        arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
-        st, sv, sr = (summary.stages[s] for s in STAGES)
-        views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
-        spans: list[tuple[str, str, int, int, float, float]] = []  # stage, call, jobs, pid, start, seconds
-        cached_render: set[str] = set()
-
         try:
             with _progress(console) as prog:
-                bars = {s: prog.add_task(s, total=0) for s in STAGES}
-
-                def advance(stage: str, n: int) -> None:
-                    prog.advance(bars[stage], n)
-
-                def view_calls(i: int) -> list[Call]:
-                    a, views, _ = arr_jobs[i]
-                    todo = [v for v in views if not store.has("view", v.key)]
-                    sv.cached += len(views) - len(todo)
-                    advance("view", len(views) - len(todo))
-                    if not todo:
-                        return render_calls(i)
-                    views_left[i] = len(todo)
-                    return [Call(task_views, (wkey, a.key, todo), "view", a.id, len(todo), i)]
-
-                def render_calls(i: int) -> list[Call]:
-                    a, views, renders = arr_jobs[i]
-                    todo, cached = [], 0
-                    for v, r in zip(views, renders):
-                        if not store.has("view", v.key):  # its view job failed
-                            continue
-                        vrec = store.load("view", v.key)
-                        summary.cameras_rejected += vrec["tries"] - (1 if vrec["accepted"] else 0)
-                        summary.rejected_seconds += vrec["rejected_seconds"]
-                        if not vrec["accepted"]:
-                            summary.views_dropped += 1
-                            continue
-                        summary.views_accepted += 1
-                        if until == "view":  # (the camera bookkeeping above is still wanted)
-                            continue
-                        sr.total += 1
-                        if store.has("render", r.key):
-                            cached += 1
-                            cached_render.add(r.key)
-                        else:
-                            todo.append((v, r))
-                    sr.cached += cached
-                    prog.update(bars["render"], total=sr.total)
-                    advance("render", cached)
-                    # Split an arrangement's renders between the workers (each loads the scene once):
-                    # otherwise the last arrangement's group runs alone at the end of the build.
-                    size = render_chunk(graph, len(todo), workers)
-                    chunks = [todo[k:k + size] for k in range(0, len(todo), size)]
-                    return [Call(task_renders, (wkey, a.key, c), "render", _group_id(c[0]), len(c), i) for c in chunks]
-
-                def view_resolved(i: int, n: int) -> list[Call]:
-                    views_left[i] -= n
-                    return render_calls(i) if views_left[i] == 0 else []
-
-                def on_done(c: Call, res) -> list[Call]:
-                    seconds, _, (pid, start) = res
-                    spans.append((c.stage, c.ident, c.n, pid, start, seconds))
-                    stage = summary.stages[c.stage]
-                    stage.ran += c.n
-                    stage.seconds += seconds
-                    advance(c.stage, c.n)
-                    if c.stage == "arrange":
-                        return view_calls(c.arr)
-                    return view_resolved(c.arr, c.n) if c.stage == "view" else []
-
-                def on_error(c: Call, e: BaseException) -> list[Call]:
-                    summary.stages[c.stage].failed += c.n
-                    summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}"})
-                    return view_resolved(c.arr, c.n) if c.stage == "view" else []
-
-                st.total, sv.total = len(arr_jobs), graph.n_views
-                prog.update(bars["arrange"], total=st.total)
-                prog.update(bars["view"], total=sv.total)
-                calls: list[Call] = []
-                for i, (a, _, _) in enumerate(arr_jobs):
-                    if store.has("arrange", a.key):
-                        st.cached += 1
-                        advance("arrange", 1)
-                        calls += view_calls(i)
-                    else:
-                        calls.append(Call(task_arrange, (wkey, a), "arrange", a.id, 1, i))
-                _run(ex, calls, on_done, on_error, window=window, retries=retries, split=split_group)
+                # wkey: which worker state a task uses (one Dask worker may serve several builds)
+                pipe = _Pipeline(graph, store, summary, prog, str(ctx.out), workers, until)
+                _run(ex, pipe.first_calls(), pipe.on_done, pipe.on_error, window=2 * workers, retries=retries,
+                     split=split_group)
         finally:
             ex.shutdown()
-        summary.workers = workers
-        t_first = min((sp[4] for sp in spans), default=0.0)
-        if spans:
-            summary.run_seconds = max(sp[4] + sp[5] for sp in spans) - t_first
-            busy = sum(sp[5] for sp in spans)
-            summary.utilisation = round(busy / (workers * summary.run_seconds), 3) if summary.run_seconds else 1.0
-        # Always written: a rebuild that ran nothing must not leave the previous build's timeline.
-        write_json(out / ".specsynth" / "trace.json", _trace(spans, t_first), indent=None)
-        summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))
+        pipe.record_timing(out)
         if until == "view":
             return summary
-
-        # ------------------------------------------------------ merge
-        t0 = time.perf_counter()
-        images, credits = [], []
-        for a, views, renders in arr_jobs:
-            arec = {}
-            if store.has("arrange", a.key):
-                arec = store.load("arrange", a.key)
-                summary.objects_removed += arec["removed"]
-                summary.objects_redropped += arec["redropped"]
-            for r in renders:
-                if store.has("render", r.key):
-                    images.append((ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)))
-                    credits += arec.get("credits", [])
-        summary.images = len(images)
-        summary.instances = sum(len(im.instances) for im, _ in images)
-        _account_savings(summary, images, cached_render)
-        from .assets import resolve_objects
-        from .verify import write_index
-        from .writers import write_outputs
-        from .writers.attribution import write_attribution
-
-        models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
-        write_outputs(out, graph.spec, images, models)
-        write_attribution(out, credits, graph.spec.name)
-        write_manifest(graph, out, arr_jobs)
-        write_json(out / "failures.json", summary.failures)
-        write_index(out)  # last: every output file is in place
-        summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
+        _merge(graph, out, store, pipe, summary)
         summary.wall_seconds = time.perf_counter() - t_build
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary
+
+
+def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: BuildSummary) -> None:
+    """Every finished render into the dataset formats, then the manifest and the output index."""
+    t0 = time.perf_counter()
+    images, credits = [], []
+    for a, views, renders in pipe.arr_jobs:
+        arec = {}
+        if store.has("arrange", a.key):
+            arec = store.load("arrange", a.key)
+            summary.objects_removed += arec["removed"]
+            summary.objects_redropped += arec["redropped"]
+        for r in renders:
+            if store.has("render", r.key):
+                images.append((ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)))
+                credits += arec.get("credits", [])
+    summary.images = len(images)
+    summary.instances = sum(len(im.instances) for im, _ in images)
+    _account_savings(summary, images, pipe.cached_render)
+    from .assets import resolve_objects
+    from .verify import write_index
+    from .writers import write_outputs
+    from .writers.attribution import write_attribution
+
+    models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
+    write_outputs(out, graph.spec, images, models)
+    write_attribution(out, credits, graph.spec.name)
+    write_manifest(graph, out, pipe.arr_jobs)
+    write_json(out / "failures.json", summary.failures)
+    write_index(out)  # last: every output file is in place
+    summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
 
 
 def _trace(spans, t0: float) -> dict[str, Any]:

@@ -120,9 +120,6 @@ class JobGraph:
     def n_views(self) -> int:
         return self.n_arrangements * self.cams_per_arrangement
 
-    def image_index(self, arr: int, cam: int) -> int:
-        return arr * self.cams_per_arrangement + cam
-
     def arrange_job(self, arr: int) -> Job:
         jid = arr_id(arr)
         scene = 0
