@@ -37,7 +37,8 @@ from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
 
 # Bump when the conversion changes its output for the same input: every cached mesh and every
 # content key that depends on an asset then changes with it.
-CONVERSION_VERSION = 1
+# 2: textures are copied into the cache under their content hash (no path into a user's folder).
+CONVERSION_VERSION = 2
 
 # Built-in models are re-centred on their bounding box, as BOP expects of a model (pybullet_data's
 # origins are wherever the modeller left them: 100 mm off for the mug). User models stay as given.
@@ -485,9 +486,17 @@ def _convert(src: _Source) -> tuple[MeshData, str | None, tuple[float, float, fl
         else:
             msg = f"{src.label}: texture {tex_name} named in the PLY header is missing; using a plain material"
             warnings.warn(msg, stacklevel=3)
+    colour = None
+    if src.path.suffix.lower() == ".obj":  # its MTL's map_Kd (with UVs) or Kd, as for built-ins
+        tex, kd = _mtl_texture(src.path)
+        if tex is not None and mesh.uv is not None:
+            check_texture(tex, src.label)
+            texture = str(tex)
+        elif kd is not None:
+            colour = kd
     s = UNIT_SCALE[src.unit]
     mesh = replace(mesh, vertices=(mesh.vertices.astype(np.float64) * s).astype(np.float32))
-    return mesh, texture, None
+    return mesh, texture, colour
 
 
 def _convert_builtin(src: _Source):
@@ -552,6 +561,18 @@ def store_mesh(mesh: MeshData, key: str, cache: Path, comments: tuple[str, ...] 
     return path, hashlib.sha256(data).hexdigest()
 
 
+def store_texture(src: Path, cache: Path) -> Path:
+    """A self-contained copy of a texture, ``<cache>/assets/textures/<sha256><suffix>``: a cached
+    asset never points into a user's folder, whose file may change or vanish after it was cached
+    (two folders with the same mesh bytes share one cache entry)."""
+    data = src.read_bytes()
+    path = Path(cache) / "assets" / "textures" / f"{hashlib.sha256(data).hexdigest()}{src.suffix.lower()}"
+    if not (path.is_file() and path.stat().st_size == len(data)):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(path, data)
+    return path
+
+
 def _load_or_convert(src: _Source, cache: Path) -> dict:
     key = src.fingerprint()
     meta_path = Path(cache) / "assets" / f"{key}.json"
@@ -559,7 +580,8 @@ def _load_or_convert(src: _Source, cache: Path) -> dict:
     if meta_path.is_file() and ply_path.is_file():
         try:
             meta = json.loads(meta_path.read_text())
-            if meta.get("v") == CONVERSION_VERSION:
+            # A texture copy deleted from the cache is remade with the rest.
+            if meta.get("v") == CONVERSION_VERSION and (not meta.get("texture") or Path(meta["texture"]).is_file()):
                 if meta.get("texture_missing"):
                     msg = f"{src.label}: texture {meta['texture_missing']} named in the PLY header is missing; using a plain material"
                     warnings.warn(msg, stacklevel=3)
@@ -579,6 +601,8 @@ def _load_or_convert(src: _Source, cache: Path) -> dict:
         )
     # No comments naming the source: mesh_key then depends on geometry alone.
     path, mesh_key = store_mesh(mesh, key, cache)
+    if texture is not None:
+        texture = str(store_texture(Path(texture), cache))
     tex_missing = None
     if texture is None and src.kind != "builtin":
         named = _bop_texture_path(src.path)

@@ -64,6 +64,16 @@ def draw(params: Augment, rng: np.random.Generator) -> dict[str, float]:
     }
 
 
+# einsum without optimisation runs numpy's own loops, never BLAS: BLAS may pick kernels (FMA or
+# not) by alignment and thread count, and a last-bit change in M can flip a rounded pixel.
+def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,jk->ik", a, b)
+
+
+def _mv(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,j->i", a, v)
+
+
 def augment(rgb: np.ndarray, params: Augment, rng: np.random.Generator) -> np.ndarray:
     """Augmented copy of an HxWx3 uint8 image (the input itself when ``params`` is all zero)."""
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -83,16 +93,16 @@ def augment(rgb: np.ndarray, params: Augment, rng: np.random.Generator) -> np.nd
     c = p["contrast"]
     if c != 1.0:
         # Contrast about the image's mean grey after brightness, as image editors do.
-        mean_grey = float(img.reshape(-1, 3).mean(axis=0) @ _LUMA) * p["brightness"]
+        mean_grey = float(np.einsum("i,i->", img.reshape(-1, 3).mean(axis=0), _LUMA)) * p["brightness"]
         M = c * M
         o = c * o + (1 - c) * mean_grey
     s = p["saturation"]
     if s != 1.0:
         S = s * np.eye(3) + (1 - s) * np.outer(np.ones(3), _LUMA)
-        M, o = S @ M, S @ o
+        M, o = _mm(S, M), _mv(S, o)
     if p["hue"] != 0.0:
         H = _hue_rotation(p["hue"])
-        M, o = H @ M, H @ o
+        M, o = _mm(H, M), _mv(H, o)
     if not (np.allclose(M, np.eye(3)) and np.allclose(o, 0)):
         # PIL's matrix conversion works on uint8 in C (rounds and clips): ~5x cheaper than float32
         # numpy on a VGA frame, and this runs on every image.

@@ -43,17 +43,39 @@ class Row:
     psnr: float
     ssim: float
     samples: int
+    phases: dict = None  # mean seconds per backend phase (RenderResult.stats["phases"])
 
 
-def settings_for(plugin: BackendPlugin, ref_factor: int) -> list[Setting]:
-    """Each quality level plain and with each of the plugin's own bench variants, then a reference."""
+LEVELS = ("low", "medium", "high")
+
+
+def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...] = LEVELS,
+                 ladder: bool = False) -> list[Setting]:
+    """Each quality level plain and with each of the plugin's own bench variants, then a reference.
+    ``ladder``: also the level's light paths at 1, 2, 4, ... samples (fewer than its own) with
+    denoising, where a denoising backend reaches the level's error for less (the calibration)."""
     out = []
-    for level in ("low", "medium", "high"):
+    for level in levels:
         out.append(Setting(plugin.name, f"{level}", level, {}))
+        if plugin.calibrated.get(level):
+            out.append(Setting(plugin.name, f"{level}+calibrated", level, dict(plugin.calibrated[level])))
         for suffix, options in plugin.bench_variants:
             out.append(Setting(plugin.name, f"{level}+{suffix}", level, dict(options)))
+        if ladder and plugin.capabilities.denoise:
+            own = preset_samples(level)
+            n = 1
+            while n < own:
+                out.append(Setting(plugin.name, f"{level}+denoise@{n}", level, {"denoise": True, "samples": n}))
+                n *= 2
     out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor}, reference=True))
     return out
+
+
+def preset_samples(level: str) -> int:
+    from .spec import PAPER_PRESETS
+
+    q = PAPER_PRESETS[level]
+    return max(q.aa, q.diffuse_rays, q.specular_rays)
 
 
 def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
@@ -171,7 +193,8 @@ def scaled_intrinsics(intr, scale: float):
 
 
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
-              scale: float = 0.5, backends: list[str] | None = None, console=None) -> list[Row]:
+              scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
+              ladder: bool = False) -> list[Row]:
     from .tasks import BuildContext, Worker
     from .writers.images import write_png
 
@@ -197,18 +220,18 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
         worker = Worker(BuildContext(spec=spec.model_copy(update={"intrinsics": small}), spec_dir=graph.spec_path.parent, out=out))
         refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        settings = settings_for(plugin, ref_factor)
+        settings = settings_for(plugin, ref_factor, levels, ladder)
         settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
         for st in settings:
             opts = dict(base_opts)
             opts.update({k: v for k, v in st.options.items() if not k.startswith("__")})
-            preset = spec.quality.model_copy(update={"level": st.level}).resolved()
+            preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
             if st.reference:
                 f = st.options["__factor__"]  # every ray count: backends take samples from their max
                 preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * f,
                                           "diffuse_rays": preset.diffuse_rays * f, "specular_rays": preset.specular_rays * f})
             backend = cls(plugin.options.model_validate(opts), threads=0)
-            times, errs, loads = [], [], []
+            times, errs, loads, phase_sums = [], [], [], {}
             samples = 0
             for i, (arec, vrec, seed) in enumerate(picked):
                 scene = worker.render_scene(arec)
@@ -227,6 +250,8 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                     ts.append(time.perf_counter() - t0)
                 times.append(statistics.median(ts))
                 samples = int(res.stats.get("samples", res.stats.get("spp", 0)))
+                for k, v in (res.stats.get("phases") or {}).items():
+                    phase_sums[k] = phase_sums.get(k, 0.0) + v / len(picked)
                 lin = res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255
                 if st.reference:
                     refs[i] = (lin, res.rgb)
@@ -237,17 +262,19 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 if i == 0:
                     write_png(out / "bench" / f"{name}_{st.label}_{i}.png", res.rgb)
             backend.close()
+            phases = {k: round(v, 4) for k, v in phase_sums.items()}
             if st.reference:
-                rows.append(Row(name, st.label, st.level, float(np.mean(times)), 0.0, float("inf"), 1.0, samples))
+                rows.append(Row(name, st.label, st.level, float(np.mean(times)), 0.0, float("inf"), 1.0, samples, phases))
             else:
                 e = np.mean(np.asarray(errs), axis=0)
-                rows.append(Row(name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]), samples))
+                rows.append(Row(name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]),
+                                samples, phases))
             if console:
                 r = rows[-1]
                 console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
-        level = spec.quality.level
+        level = spec.quality.paper_level
         savings += camera_savings(name, rows, level, cams, statistics.median(loads), spec.cameras.per_arrangement)
-        preset = spec.quality.model_copy(update={"level": level}).resolved()
+        preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
         for label, option in plugin.bench_toggles:
             savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, worker, preset, repeats))
         worker.close()
@@ -255,19 +282,30 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
     return rows, savings
 
 
-def equal_error_speedups(rows: list[Row]) -> dict[str, dict]:
-    """Per backend: the fastest setting reaching the plain 'high' preset's PSNR, and its speed-up."""
+def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:
+    """Per backend: the fastest setting reaching the plain ``level`` preset's PSNR, and its speed-up."""
     out = {}
     for b in sorted({r.backend for r in rows}):
         rs = [r for r in rows if r.backend == b and r.setting != "reference"]
-        high = next((r for r in rs if r.setting == "high"), None)
-        if high is None:
+        plain = next((r for r in rs if r.setting == level), None)
+        if plain is None:
             continue
-        ok = [r for r in rs if r.psnr >= high.psnr - 1e-9]
+        ok = [r for r in rs if r.psnr >= plain.psnr - 1e-9]
         best = min(ok, key=lambda r: r.seconds)
-        out[b] = {"target_psnr": round(high.psnr, 2), "fastest": best.setting, "seconds": round(best.seconds, 2),
-                  "speedup_vs_high": round(high.seconds / best.seconds, 2)}
+        out[b] = {"target_psnr": round(plain.psnr, 2), "fastest": best.setting, "seconds": round(best.seconds, 2),
+                  "speedup_vs_high" if level == "high" else "speedup": round(plain.seconds / best.seconds, 2)}
     return out
+
+
+def _finite(x):
+    """JSON has no inf/NaN (a reference's PSNR, a saving not measured in this run): null instead."""
+    if isinstance(x, float):
+        return x if np.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
 
 
 def write_report(rows: list[Row], out: Path, graph: JobGraph, savings: list[Saving] = (), **meta) -> None:
@@ -284,9 +322,16 @@ def write_report(rows: list[Row], out: Path, graph: JobGraph, savings: list[Savi
         w.writerow(["backend", "setting", "level", "seconds", "rel_mse", "psnr_db", "ssim", "samples"])
         for r in rows:
             w.writerow([r.backend, r.setting, r.level, f"{r.seconds:.3f}", f"{r.rel_mse:.4e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}", r.samples])
-    (out / "bench.json").write_text(json.dumps({"meta": {**meta, "spec": str(graph.spec_path)},
-                                                "equal_error": equal_error_speedups(rows),
-                                                "savings": [vars(x) for x in savings]}, indent=2) + "\n")
+    equal = equal_error_speedups(rows)
+    (out / "bench.json").write_text(json.dumps(_finite({
+        "meta": {**meta, "spec": str(graph.spec_path)},
+        # per backend: plain 'high' seconds / seconds of the cheapest setting reaching its PSNR
+        "equal_error_speedup": {b: e["speedup_vs_high"] for b, e in equal.items()},
+        "equal_error": equal,
+        # per backend and paper level: the cheapest setting reaching that level's error
+        "calibration": {lv: equal_error_speedups(rows, lv) for lv in LEVELS if any(r.setting == lv for r in rows)},
+        "rows": [vars(r) for r in rows],
+        "savings": [vars(x) for x in savings]}), indent=2, allow_nan=False) + "\n")
     fig, ax = plt.subplots(figsize=(8, 5))
     for b, colour in zip(sorted({r.backend for r in rows}), ("tab:blue", "tab:orange", "tab:green")):
         rs = [r for r in rows if r.backend == b and r.setting != "reference"]

@@ -98,6 +98,9 @@ class BuildSummary:
     # What skipping saved, in seconds (estimates from this build's own measured render times).
     saved: dict[str, float] = field(default_factory=dict)
     glossy_bounces_skipped: int = 0  # renders whose scene had no glossy material
+    # Worker-seconds of this build's renders by phase (render.<backend phase>, load, annotate,
+    # encode, write): where the render stage's time went.
+    render_phases: dict[str, float] = field(default_factory=dict)
     wall_seconds: float = 0.0
     workers: int = 0
     # From the first job's start to the last job's end, and the share of it the workers were busy
@@ -112,9 +115,14 @@ class BuildSummary:
 
 
 def _samples(graph: JobGraph) -> int:
-    """The backends' rule: an explicit `samples`, else max(AA, diffuse rays, specular rays)."""
+    """The backends' rule: an explicit (or calibrated) `samples`, else max(AA, diffuse rays, specular rays)."""
     q = graph.spec.quality.resolved()
-    return graph.spec.backend.samples or max(q.aa, q.diffuse_rays, q.specular_rays)
+    options = graph.spec.backend
+    try:
+        options = backend_plugin(options.name).options_for(options, graph.spec.quality)
+    except PluginNotFound:
+        pass
+    return options.samples or max(q.aa, q.diffuse_rays, q.specular_rays)
 
 
 def _render_estimate(graph: JobGraph) -> float:
@@ -285,7 +293,7 @@ class _Pipeline:
         self.wkey, self.workers, self.until = wkey, workers, until
         self.arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
         self.views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
-        self.spans: list[tuple[str, str, int, int, float, float]] = []  # stage, call, jobs, pid, start, seconds
+        self.spans: list[tuple[str, str, int, int, float, float, dict]] = []  # stage, call, jobs, pid, start, seconds, args
         self.cached_render: set[str] = set()
         self.bars = {s: prog.add_task(s, total=0) for s in STAGES}
 
@@ -353,8 +361,16 @@ class _Pipeline:
         return self.render_calls(i) if self.views_left[i] == 0 else []
 
     def on_done(self, c: Call, res) -> list[Call]:
-        seconds, _, (pid, start) = res
-        self.spans.append((c.stage, c.ident, c.n, pid, start, seconds))
+        seconds, result, (pid, start) = res
+        args = {}
+        if c.stage == "render":
+            for r in result:
+                for k, v in r.get("phases", {}).items():
+                    args[k] = args.get(k, 0.0) + v
+            phases = self.summary.render_phases
+            for k, v in args.items():
+                phases[k] = round(phases.get(k, 0.0) + v, 4)
+        self.spans.append((c.stage, c.ident, c.n, pid, start, seconds, {k: round(v, 4) for k, v in args.items()}))
         stage = self.summary.stages[c.stage]
         stage.ran += c.n
         stage.seconds += seconds
@@ -455,8 +471,9 @@ def _trace(spans, t0: float) -> dict[str, Any]:
     row per worker process, one box per call."""
     pids = {pid: k for k, pid in enumerate(sorted({sp[3] for sp in spans}))}
     events = [{"name": f"{stage} {ident}" + (f" ({n})" if n > 1 else ""), "cat": stage, "ph": "X",
-               "ts": round(1e6 * (start - t0)), "dur": round(1e6 * seconds), "pid": 1, "tid": pids[pid]}
-              for stage, ident, n, pid, start, seconds in spans]
+               "ts": round(1e6 * (start - t0)), "dur": round(1e6 * seconds), "pid": 1, "tid": pids[pid],
+               **({"args": {"seconds by phase": args}} if args else {})}
+              for stage, ident, n, pid, start, seconds, args in spans]
     events += [{"name": "thread_name", "ph": "M", "pid": 1, "tid": k, "args": {"name": f"worker {k} (pid {pid})"}}
                for pid, k in pids.items()]
     return {"traceEvents": events, "displayTimeUnit": "ms"}

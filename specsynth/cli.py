@@ -127,6 +127,8 @@ def cmd_build(args) -> int:
     if s.saved:
         out.print("time saved (s): " + ", ".join(f"{k.replace('_', ' ')} {v:.1f}" for k, v in s.saved.items())
                   + (f"; glossy bounces skipped in {s.glossy_bounces_skipped} render(s)" if s.glossy_bounces_skipped else ""))
+    if s.render_phases:
+        out.print("render worker-seconds by phase: " + phase_line(s.render_phases))
     if s.failures:
         out.print(f"[red]{len(s.failures)} failed job group(s); see {Path(args.out) / 'failures.json'}[/red]")
         for f in s.failures[:10]:
@@ -185,7 +187,7 @@ def cmd_scenes(args) -> int:
             print("error: scenes preview needs a scene name (see `specsynth scenes`)", file=sys.stderr)
             return 2
         preview_scene(args.name, args.backend, Path(args.out), width=args.width, height=args.width * 3 // 4,
-                      samples=args.samples)
+                      samples=args.samples, variant=args.seed, stages=not args.no_stages, denoise=args.denoise)
         print(f"wrote {args.out}")
         return 0
     if args.action == "show":
@@ -214,15 +216,16 @@ def cmd_scenes(args) -> int:
 
 def _scene_asset_count(name: str) -> int:
     """Meshes of a declared built-in scene; for a procedural one, the furniture models it draws from."""
-    from .scenes import procedural_name, read_scene_file
-    from .scenes import BUILTIN_DIR
+    from .scenes import BUILTIN_DIR, generated_name, procedural_name, read_scene_file
 
     if procedural_name(name):
-        from .library.furniture import catalogue
-        from .scenes.random_room import ROOM_KINDS
+        from .scenes.random_room import RoomParams, kind_items
 
-        kinds = {c for cats in ROOM_KINDS.values() for c in cats}
-        return sum(1 for i in catalogue() if i.category in kinds)
+        return len({i.id for kind in RoomParams().kinds for i in kind_items(kind)})
+    if generated_name(name):
+        from .scenes import load_scene
+
+        return len(load_scene(name, Path.cwd()).meshes)
     return len(read_scene_file(BUILTIN_DIR / f"{name}.yaml").meshes)
 
 
@@ -246,6 +249,13 @@ def _show_scene(args) -> int:
     top_down(desc).save(out)
     print(f"wrote {out} (top-down, stages outlined)")
     return 0
+
+
+def phase_line(phases: dict[str, float]) -> str:
+    """``render.trace 41.2 s (62%), ...``, largest first."""
+    total = sum(phases.values()) or 1.0
+    top = sorted(phases.items(), key=lambda kv: -kv[1])
+    return ", ".join(f"{k} {v:.1f} s ({100 * v / total:.0f}%)" for k, v in top if v >= 0.005 * total)
 
 
 def backend_rows() -> list[dict]:
@@ -335,7 +345,9 @@ def cmd_bench(args) -> int:
     _, graph = _compile(args.spec, args.set)
     console = Console()
     rows, savings = run_bench(graph, Path(args.out), n_views=args.views, repeats=args.repeats, ref_factor=args.ref_factor,
-                     scale=args.scale, backends=args.backend or None, console=console)
+                     scale=args.scale, backends=args.backend or None, console=console,
+                     levels=tuple(args.levels.split(",")) if args.levels else ("low", "medium", "high"),
+                     ladder=args.ladder)
     t = Table(title=f"bench: {args.spec} ({args.views} view(s), scale {args.scale})")
     for col in ("backend", "setting", "samples", "seconds", "relMSE", "PSNR dB", "SSIM"):
         t.add_column(col, justify="left" if col in ("backend", "setting") else "right")
@@ -420,6 +432,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="scene.png")
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--samples", type=int, default=32)
+    p.add_argument("--seed", type=int, default=None, help="preview: random_room's seed (a room per seed)")
+    p.add_argument("--no-stages", action="store_true", help="preview: the render alone, no stage outlines")
+    p.add_argument("--denoise", action="store_true", help="preview: denoise the render")
     p.set_defaults(fn=cmd_scenes)
 
     p = sub.add_parser("backends", help="installed render backend plugins, their capabilities and options")
@@ -451,6 +466,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ref-factor", type=int, default=4, help="reference samples = factor x high preset")
     p.add_argument("--scale", type=float, default=0.25, help="image scale (0.25 = 160x120 for VGA specs)")
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
+    p.add_argument("--levels", help="comma-separated quality levels to bench (default low,medium,high)")
+    p.add_argument("--ladder", action="store_true",
+                   help="also each level at 1, 2, 4, ... samples with denoising: the cheapest that reaches its error")
     p.set_defaults(fn=cmd_bench)
 
     p = sub.add_parser("export", help="convert a built dataset for other tools (yolo: Ultralytics)")

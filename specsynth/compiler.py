@@ -15,7 +15,7 @@ from typing import Iterator
 
 from . import keys, seeds
 from .plugins import backend_plugin
-from .assets import AssetError, check_texture, expand_path, file_digest, object_fingerprints
+from .assets import AssetError, builtin_objects, check_texture, expand_path, file_digest, object_fingerprints
 from .scenes import declares_stages, scene_fingerprint, stage_table
 from .spec import DatasetSpec
 from .yamlio import LoadedSpec, SpecError
@@ -187,6 +187,11 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
             check_texture(tex, field)
         except AssetError as e:
             problems.append(loaded.locate(field, str(e)))
+    known = set(builtin_objects())
+    for k, name in enumerate(spec.arrangements.distractors.objects):
+        if name != "random_urdfs/*" and name not in known:
+            field = f"arrangements.distractors.objects.{k}"
+            problems.append(loaded.locate(field, f"unknown built-in object {name!r} (see specsynth.assets.builtin_objects)"))
     scene_hashes = {}
     for i, ref in enumerate(spec.scenes):
         try:

@@ -49,6 +49,18 @@ class BackendPlugin:
     # boolean options whose saving is measured by rendering the same views with and without.
     bench_variants: tuple[tuple[str, dict[str, Any]], ...] = ()
     bench_toggles: tuple[tuple[str, str], ...] = field(default=())
+    # Quality levels low/medium/high: option values that reach (at least) the paper preset's image
+    # error for less (measured by `specsynth bench --ladder`), e.g. {"high": {"samples": 16,
+    # "denoise": True}}. Applied unless the spec sets the option itself; paper_* levels never.
+    calibrated: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def options_for(self, options: Any, quality: Any) -> Any:
+        """The spec's options with the level's calibration filled in where the spec is silent."""
+        cal = self.calibrated.get(quality.paper_level) if quality.calibrated else None
+        if not cal:
+            return options
+        update = {k: v for k, v in cal.items() if k not in options.model_fields_set}
+        return options.model_copy(update=update) if update else options
 
     def load_class(self) -> type:
         mod, _, attr = self.backend.partition(":")

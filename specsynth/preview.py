@@ -84,8 +84,10 @@ def scene_backends() -> list[str]:
     return [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
 
 
-def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 640, height: int = 480, samples: int = 16) -> Path:
-    scene = load_scene(name, Path.cwd())
+def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 640, height: int = 480, samples: int = 16,
+                  variant: int | None = None, stages: bool = True, denoise: bool = False) -> Path:
+    """An overview render of a scene (``variant``: random_room's seed), with its stages drawn."""
+    scene = load_scene(name, Path.cwd(), variant=variant)
     intr = Intrinsics(width=width, height=height, fx=0.45 * width, fy=0.45 * width, cx=width / 2 - 0.5, cy=height / 2 - 0.5)
     cam = overview_camera(scene, intr)
     drawers = scene_backends()
@@ -96,7 +98,7 @@ def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 64
     if not plugin.capabilities.draws_scene:
         raise ValueError(f"backend {backend!r} draws only dataset objects; preview a scene with one that draws "
                          f"scenes ({', '.join(drawers) or 'none installed'})")
-    r = plugin.load_class()(plugin.options(), threads=0)
+    r = plugin.load_class()(plugin.options(denoise=denoise), threads=0)
     rs = scene.with_objects(())
     r.load(rs)
     res = r.render(cam, QualityPreset(aa=samples, diffuse_rays=samples, specular_rays=samples, diffuse_depth=3,
@@ -104,5 +106,5 @@ def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 64
     r.close()
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    draw_stages(res.rgb, scene, cam).save(dest)
+    (draw_stages(res.rgb, scene, cam) if stages else Image.fromarray(res.rgb)).save(dest)
     return dest

@@ -32,6 +32,7 @@ class ArrangementRecord:
     sim_seconds: float = 0.0  # simulated time
     seed: int = 0
     credits: list[dict] = field(default_factory=list)  # third-party assets of its scene (attribution)
+    distractors: list[PlacedObject] = field(default_factory=list)  # part of the scene: not annotated
 
     @property
     def scene_ref(self) -> tuple[str, int | None]:
@@ -47,6 +48,7 @@ class ArrangementRecord:
     def from_json(cls, d: dict[str, Any]) -> "ArrangementRecord":
         d = dict(d)
         d["objects"] = [PlacedObject(**o) for o in d["objects"]]
+        d["distractors"] = [PlacedObject(**o) for o in d.get("distractors", [])]
         return cls(**d)
 
 

@@ -164,16 +164,58 @@ def _int_range(v: tuple[int, int], lo_min: int) -> tuple[int, int]:
 # --------------------------------------------------------------------------- scenes
 
 
+class RoomOptions(Strict):
+    """Parameters of the procedural ``random_room`` (a new furnished room per arrangement)."""
+
+    kinds: list[Literal["living_room", "kitchen", "office", "bedroom", "workshop", "shop"]] = Field(
+        ["living_room", "kitchen", "office", "bedroom"], min_length=1,
+        description="Room kinds to draw from (each picks its furniture from the library's categories).")
+    width: FloatRange(2.5, 12.0) = Field((3.6, 6.0), description="Interior width range, metres.")
+    depth: FloatRange(2.5, 12.0) = Field((3.2, 5.0), description="Interior depth range, metres.")
+    height: FloatRange(2.2, 5.0) = Field((2.5, 2.9), description="Ceiling height range, metres.")
+    density: FloatRange(0.0, 3.0) = Field((1.0, 1.0), description="Furniture count multiplier range "
+                                          "(1 = 6-10 pieces against the walls and 1-2 in the middle).")
+    categories: list[str] | None = Field(None, min_length=1, description="Furniture catalogue categories "
+                                         "(see `specsynth furniture`) instead of the kinds' own.")
+
+
+class SceneRandomization(Strict):
+    """Domain randomisation of a scene, drawn per arrangement from its seed (off by default)."""
+
+    materials: float = Field(0.0, ge=0, le=1, description="Probability that each textured-able scene surface "
+                             "(one with UVs) gets a surface texture of the library instead of its own.")
+    roughness: float = Field(0.0, ge=0, le=0.5, description="Roughness and specular of every scene surface "
+                             "jittered by up to +/- this much (clipped to [0, 1]).")
+    light_temperature: FloatRange(1000.0, 15000.0) | None = Field(
+        None, description="Each light's colour: a black body drawn in this range, kelvin (e.g. [2700, 6500]).")
+    light_strength: FloatRange(0.0, 100.0) = Field((1.0, 1.0), description="Each light's power multiplied by a "
+                                                   "factor drawn in this range.")
+    light_position: float = Field(0.0, ge=0, le=5.0, description="Each light moved by up to this many metres "
+                                  "along each axis.")
+    environment_strength: FloatRange(0.0, 100.0) = Field((1.0, 1.0), description="The world/HDRI strength "
+                                                         "multiplied by a factor drawn in this range.")
+
+    @property
+    def active(self) -> bool:
+        return bool(self.materials or self.roughness or self.light_temperature or self.light_position
+                    or self.light_strength != (1.0, 1.0) or self.environment_strength != (1.0, 1.0))
+
+
 class SceneRef(Strict):
     name: str | None = Field(None, description="Built-in scene name (see `specsynth scenes`).")
     file: str | None = Field(None, description="Scene file (YAML/JSON), relative to the spec file.")
     stages: list[str] | None = Field(None, description="Stages to use, by name; default all.")
     weight: float = Field(1.0, gt=0, description="Relative probability of choosing this scene.")
+    room: RoomOptions | None = Field(None, description="Parameters of 'random_room' (only).")
+    randomize: SceneRandomization = Field(SceneRandomization(), description="Domain randomisation per "
+                                          "arrangement: surface materials, light colour, strength, position.")
 
     @model_validator(mode="after")
     def _one_source(self):
         if (self.name is None) == (self.file is None):
             raise ValueError("give exactly one of 'name' (built-in scene) or 'file'")
+        if self.room is not None and self.name != "random_room":
+            raise ValueError("'room' parameters are for the scene 'random_room' only")
         return self
 
     @property
@@ -202,10 +244,22 @@ class Physics(Strict):
     restitution: float = Field(0.1, ge=0, le=1)
 
 
+class Distractors(Strict):
+    """Objects dropped with the dataset objects that are part of the scene: they occlude and are not
+    annotated (BlenderProc's BOP recipe's distractors)."""
+
+    count: IntRange(0) = Field((0, 0), description="Distractors per arrangement, [min, max].")
+    objects: list[str] = Field(
+        ["random_urdfs/*"], min_length=1,
+        description="Built-in objects to draw from (see specsynth.assets.builtin_objects): names, or "
+        "'random_urdfs/*' for pybullet_data's 1000 random shapes.")
+
+
 class Arrangements(Strict):
     count: int = Field(10, ge=1, le=10_000_000, description="Number of arrangements (physics drops).")
     drop_height: FloatRange(0.0, 10.0) = Field((0.05, 0.5), description="Initial height above the stage, metres.")
     physics: Physics = Physics()
+    distractors: Distractors = Field(Distractors(), description="Unannotated objects dropped with the targets.")
 
 
 
@@ -276,15 +330,27 @@ PAPER_PRESETS: dict[str, QualityPreset] = {
 
 
 class Quality(Strict):
-    level: Literal["low", "medium", "high"] = "low"
+    level: Literal["low", "medium", "high", "paper_low", "paper_medium", "paper_high"] = Field(
+        "low", description="low/medium/high: at least the paper presets' image error at the least cost on the "
+        "backend (its calibrated samples and denoising: `specsynth backends`, docs/quality.md); "
+        "paper_low/paper_medium/paper_high: the paper's raw settings, for its experiments.")
     presets: dict[Literal["low", "medium", "high"], QualityOverride] = Field(
         default_factory=dict, description="Overrides of the paper's preset numbers, per level."
     )
     clamp: float | None = Field(None, gt=0, description="Clamp indirect sample radiance (fireflies).")
 
+    @property
+    def paper_level(self) -> str:
+        """low/medium/high: the paper level whose light paths (and error) this level has."""
+        return self.level.removeprefix("paper_")
+
+    @property
+    def calibrated(self) -> bool:
+        return not self.level.startswith("paper_")
+
     def resolved(self) -> QualityPreset:
-        base = PAPER_PRESETS[self.level].model_dump()
-        over = self.presets.get(self.level)
+        base = PAPER_PRESETS[self.paper_level].model_dump()
+        over = self.presets.get(self.paper_level)
         if over is not None:
             base.update({k: v for k, v in over.model_dump().items() if v is not None})
         return QualityPreset(**base)
@@ -303,6 +369,8 @@ class BackendOptions(Strict):
         False, description="Denoise the beauty pass (OpenImageDenoise with albedo and normal passes). "
         "Backends whose renders carry no sampling noise accept it and do nothing.",
     )
+    denoise_quality: Literal["fast", "balanced", "high"] = Field(
+        "high", description="OpenImageDenoise filter quality: 'balanced' costs about half of 'high' on the CPU.")
     samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count.")
 
     def input_folders(self) -> tuple[str, ...]:

@@ -20,7 +20,7 @@ from . import cameras, seeds
 from .assets import ObjectAsset, resolve_objects
 from .plugins import backend_plugin
 from .colour import check_finite
-from .compiler import Job
+from .compiler import Job, arr_id
 from .ir import MeshInstance, RenderScene, as_tuple
 from .records import ArrangementRecord, ImageRecord, PlacedObject, ViewRecord
 from .scenes import load_scene, procedural_name
@@ -56,6 +56,8 @@ class Worker:
         self._annotator = None
         self._backend = None
         self._draws_scene = True
+        self._distractors: dict[str, ObjectAsset] = {}
+        self._has_uv: dict[str, bool] = {}
         # What the annotator / backend hold now: (arrangement key, seconds its load took).
         self._loaded: dict[str, tuple[str, float]] = {}
         # One BLAS thread: our products are 4x4 poses and Nx3 vertex arrays, too small to gain from
@@ -71,7 +73,7 @@ class Worker:
         return self._assets
 
     def scene(self, ref: SceneRef, variant: int | None = None) -> SceneDesc:
-        key = (ref.ref, variant)
+        key = (ref.ref, variant, ref.room.model_dump_json() if getattr(ref, "room", None) else None)
         if key not in self._scenes:
             if variant is not None:  # procedural rooms: keep the last few, so memory stays flat
                 rooms = [k for k in self._scenes if k[1] is not None]
@@ -93,7 +95,7 @@ class Worker:
             plugin = backend_plugin(self.spec.backend.name)
             # Paths in a spec are relative to the spec file (as the compiler hashes them), never
             # to wherever the build was started.
-            options = self.spec.backend.relative_to(self.ctx.spec_dir)
+            options = plugin.options_for(self.spec.backend.relative_to(self.ctx.spec_dir), self.spec.quality)
             self._backend = plugin.load_class()(options, threads=self.ctx.threads)
             self._draws_scene = plugin.capabilities.draws_scene
         return self._backend
@@ -141,7 +143,59 @@ class Worker:
             for o in arr.objects
         )
         name, variant = arr.scene_ref
-        return self.scene(self._scene_ref(name), variant).with_objects(objects)
+        ref = self._scene_ref(name)
+        scene = self.scene(ref, variant).with_objects(objects)
+        if arr.distractors:
+            scene = RenderScene(meshes=scene.meshes + self._distractor_meshes(arr.distractors), lights=scene.lights,
+                                world=scene.world)
+        return self._randomized(scene, ref, arr.arr)
+
+    def _distractor_meshes(self, placed: list[PlacedObject]) -> tuple[MeshInstance, ...]:
+        """Distractors are scene geometry (``obj_id`` None): drawn, occluding, never annotated."""
+        found = {a.name: a for a in self.distractor_assets(sorted({d.name for d in placed}))}
+        return tuple(MeshInstance(name=f"distractor_{k:03d}", mesh_path=found[d.name].mesh_path,
+                                  mesh_key=found[d.name].mesh_key, pose=as_tuple(np.asarray(d.pose)),
+                                  material=found[d.name].material)
+                     for k, d in enumerate(placed))
+
+    def distractor_assets(self, names: list[str]) -> list[ObjectAsset]:
+        missing = [n for n in names if n not in self._distractors]
+        if missing:
+            from .spec import Objects
+
+            for a in resolve_objects(Objects(builtin=missing), self.ctx.spec_dir):
+                self._distractors[a.name] = a
+        return [self._distractors[n] for n in names]
+
+    def _swapped_credits(self, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:
+        """Credits of the library textures that randomisation puts into this arrangement's scene
+        (exactly what its renders will show: the same function of the same seed)."""
+        if not ref.randomize.materials:
+            return []
+        from .library import textures
+        from .library.cache import cache_dir
+
+        by_path = {str(t.path): t for t in textures.available(cache_dir())}
+        used = sorted({m.material.texture for m in self.render_scene(rec).meshes if m.material.texture in by_path})
+        return [by_path[t].credit for t in used]
+
+    def _randomized(self, scene: RenderScene, ref: SceneRef, arr: int) -> RenderScene:
+        if not ref.randomize.active:
+            return scene
+        from .library import textures
+        from .library.cache import cache_dir
+        from .meshio import read_mesh
+        from .scenes.randomize import randomize_scene
+
+        library = textures.available(cache_dir()) if ref.randomize.materials else []
+        rng = np.random.default_rng(seeds.job_seed(self.spec.seed, f"{arr_id(arr)}/randomize"))
+
+        def has_uv(path: str) -> bool:
+            if path not in self._has_uv:
+                self._has_uv[path] = read_mesh(path).uv is not None
+            return self._has_uv[path]
+
+        return randomize_scene(scene, ref.randomize, rng, library, has_uv)
 
     def frame(self, arr: ArrangementRecord) -> tuple[RenderScene, np.ndarray]:
         """The scene re-centred on its objects, and the offset to apply to cameras.
@@ -185,17 +239,25 @@ class Worker:
         for m in models:
             drop += [m] * int(rng.integers(lo, hi + 1))
 
-        result = arrange(scene, stage, drop, spec.arrangements, spec.objects.orientation, rng)
+        distractors = self.distractor_assets(draw_distractors(spec.arrangements.distractors, rng))
+        result = arrange(scene, stage, drop + distractors, spec.arrangements, spec.objects.orientation, rng)
+        targets = [(i, pose) for i, pose in result.placed if i < len(drop)]
         placed = [
             PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
-            for n, (i, pose) in enumerate(result.placed)
+            for n, (i, pose) in enumerate(targets)
+        ]
+        others = [
+            PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
+            for n, (i, pose) in enumerate((i, pose) for i, pose in result.placed if i >= len(drop))
         ]
         rec = ArrangementRecord(
             arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
             objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
             settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
             credits=list(scene.credits) + [a.credit for a in models if a.credit],
+            distractors=others,
         )
+        rec.credits += self._swapped_credits(rec, ref)
         self.store.put("arrange", job.key, rec.to_json())
         return {"id": job.id, "removed": rec.removed, "redropped": rec.redropped, "objects": len(placed)}
 
@@ -255,6 +317,7 @@ class Worker:
         backend = self.backend()
         annot = self.annotator()
         load_seconds = self.load("backend", arrange_key, scene) + self.load("annotator", arrange_key, scene)
+        load_phase = load_seconds
         occluders = "scene" if self._draws_scene else "objects"
         preset = spec.quality.resolved()
         ext = spec.outputs.image_format
@@ -269,7 +332,9 @@ class Worker:
             seconds = time.perf_counter() - t1
             if res.linear is not None:
                 check_finite(res.linear, f"{spec.backend.name} render of {job.id}")
+            t2 = time.perf_counter()
             ann = annot.annotate(cam, spec.visibility.delta, occluders)
+            t3 = time.perf_counter()
             wd = self.store.begin()
             rgb_file = f"rgb.{ext}"
             if ext == "jpg":
@@ -295,8 +360,11 @@ class Worker:
             if spec.outputs.exr and res.linear is not None:
                 exr_file = "rgb.exr"
                 write_exr(wd / exr_file, res.linear)
+            t4 = time.perf_counter()
             stats = dict(res.stats)
             stats["load_seconds"] = load_seconds
+            stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,
+                                            annotate=t3 - t2, encode=t4 - t3)
             rec = ImageRecord(
                 arr=job.arr, cam=job.cam, index=view.index, scene=arr.scene, stage=arr.stage,
                 backend=spec.backend.name, backend_version=backend.version(), quality=spec.quality.level,
@@ -305,9 +373,35 @@ class Worker:
                 rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
                 exr_file=exr_file, render_seconds=seconds, stats=stats,
             )
+            t5 = time.perf_counter()
             self.store.commit("render", job.key, wd, rec.to_json())
-            out.append({"id": job.id, "seconds": seconds})
+            out.append({"id": job.id, "seconds": seconds,
+                        "phases": {**stats["phases"], "write": round(time.perf_counter() - t5, 5)}})
+            load_phase = 0.0  # the scene load is paid by the first render of the call
         return out
+
+
+def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:
+    """Where one image's time went: the backend's own phases (prefixed ``render.``; what it does
+    not account for is ``render.other``) and the core's (scene load, annotation, encoding). The
+    store commit (``write``) happens after the record is made and is summed by the build."""
+    phases = {f"render.{k}": float(v) for k, v in (backend_phases or {}).items()}
+    phases["render.other"] = max(0.0, render_seconds - sum(phases.values()))
+    phases.update({k: float(v) for k, v in core.items()})
+    return {k: round(v, 5) for k, v in phases.items()}
+
+
+def draw_distractors(d, rng: np.random.Generator) -> list[str]:
+    """The built-in objects dropped as distractors in one arrangement."""
+    lo, hi = d.count
+    n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
+    pool = [o for o in d.objects if o != "random_urdfs/*"]
+    wild = "random_urdfs/*" in d.objects
+    out = []
+    for _ in range(n):
+        k = int(rng.integers(len(pool) + (1000 if wild else 0)))
+        out.append(pool[k] if k < len(pool) else f"random_urdfs/{k - len(pool):03d}")
+    return out
 
 
 # Worker state per output folder, created by the pool initializer (or a Dask WorkerPlugin): the

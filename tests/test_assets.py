@@ -139,7 +139,11 @@ def test_builtins_metric_and_upright(cache, tmp_path):
     assert duck.extents[2] < duck.extents[0]
     for a in (duck, teddy, mug, jenga):  # BOP's model origin: the centre of the 3D bounding box
         assert np.asarray(a.bbox_min) + np.asarray(a.extents) / 2 == pytest.approx((0, 0, 0), abs=1e-6)
-    assert duck.material.texture.endswith("duckCM.png") and read_mesh(duck.mesh_path).uv is not None
+    import pybullet_data
+
+    src_png = Path(pybullet_data.getDataPath()) / "duckCM.png"
+    assert Path(duck.material.texture).read_bytes() == src_png.read_bytes()  # a copy in the cache
+    assert Path(duck.material.texture).is_relative_to(cache) and read_mesh(duck.mesh_path).uv is not None
     # Built-ins follow the BOP ids in list order.
     first = max(a.obj_id for a in res.values() if a.name not in ("duck", "teddy", "mug", "jenga"))
     assert [duck.obj_id, teddy.obj_id, mug.obj_id, jenga.obj_id] == list(range(first + 1, first + 5))
@@ -181,3 +185,27 @@ def test_hdris():
     assert assets.hdri_path("interior").suffix == ".exr"
     with pytest.raises(AssetError, match="unknown"):
         assets.hdri_path("nope")
+
+
+def test_cached_asset_never_points_into_another_folder(cache, tmp_path):
+    """Two folders with the same OBJ + texture bytes share one cache entry; changing (or deleting)
+    the first folder's texture afterwards must not change what the second build renders."""
+    from PIL import Image
+
+    def folder(name):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "box.obj").write_text("mtllib box.mtl\nv 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+                                   "vt 0 0\nvt 1 0\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/2\nf 1/1 4/2 2/2\nf 2/2 4/2 3/3\n")
+        (d / "box.mtl").write_text("newmtl m\nmap_Kd tex.png\n")
+        Image.new("RGB", (4, 4), (200, 10, 10)).save(d / "tex.png")
+        return d
+
+    a, b = folder("a"), folder("b")
+    (obj_a,) = assets.resolve_objects(Objects(meshes=[MeshObject(path=str(a / "box.obj"), unit="m")]), tmp_path, cache)
+    Image.new("RGB", (4, 4), (10, 200, 10)).save(a / "tex.png")  # the user edits folder a later
+    (obj_b,) = assets.resolve_objects(Objects(meshes=[MeshObject(path=str(b / "box.obj"), unit="m")]), tmp_path, cache)
+    assert obj_b.material.texture is not None and not Path(obj_b.material.texture).is_relative_to(a)
+    assert Path(obj_b.material.texture).read_bytes() == (b / "tex.png").read_bytes()
+    (a / "tex.png").unlink()
+    assert Path(obj_a.material.texture).is_file()  # the first build's copy survives its source

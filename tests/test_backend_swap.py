@@ -56,3 +56,27 @@ def test_swapping_backend_keeps_annotations(tmp_path, other):
     rgb_a = _files(tmp_path / "cycles", f"{chunk}/rgb/*.png")
     rgb_b = _files(tmp_path / "other", f"{chunk}/rgb/*.png")
     assert rgb_a.keys() == rgb_b.keys() and rgb_a != rgb_b  # same images, different renderer
+
+
+DEMO = Path(__file__).resolve().parents[1] / "specs" / "demo.yaml"
+TINY = ["arrangements.count=1", "cameras.per_arrangement=1",
+        "intrinsics={width: 96, height: 72, fx: 86.0, fy: 86.0, cx: 47.5, cy: 35.5}"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["cycles", "mitsuba", "photo"])
+def test_demo_spec_renders_with_each_backend_by_one_line(tmp_path, name):
+    """specs/demo.yaml (cycles, denoise: true) with only ``--set backend.name=X``."""
+    loaded = load_spec(DEMO, [f"backend.name={name}", *TINY])
+    assert loaded.spec.backend.denoise is True
+    s = build(compile_spec(loaded), tmp_path / name, jobs=1)
+    assert not s.failures, s.failures
+    assert s.images == 1 and s.instances > 0
+    rgb = next((tmp_path / name / "bop" / "train_pbr" / "000000" / "rgb").glob("*.jpg"))
+    from PIL import Image
+    import numpy as np
+
+    assert np.asarray(Image.open(rgb)).std() > 5
+    assert set(s.render_phases) >= {"load", "annotate", "encode", "write"}
+    if name != "photo":
+        assert any(k.startswith("render.") and k != "render.other" for k in s.render_phases)

@@ -72,3 +72,11 @@ def test_bench_cli_on_the_demo_with_cycles(tmp_path):
     assert what == {"visibility pre-check", "scene loaded once per arrangement", "cache", "light-path budget"}
     assert all(math.isfinite(s["seconds"]) for s in meta["savings"])
     assert (out / "bench.png").stat().st_size > 10_000
+
+
+def test_bench_json_has_no_inf_or_nan():
+    from specsynth.bench import _finite
+
+    doc = {"rows": [{"psnr": float("inf"), "seconds": 1.5}], "savings": [{"seconds": float("nan")}], "n": 3}
+    text = json.dumps(_finite(doc), allow_nan=False)
+    assert json.loads(text) == {"rows": [{"psnr": None, "seconds": 1.5}], "savings": [{"seconds": None}], "n": 3}

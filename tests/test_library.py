@@ -130,6 +130,45 @@ def test_random_room_loads_with_stages_on_furniture(cache):
     assert [(m.name, m.mesh_key, m.pose) for m in again.meshes] == [(m.name, m.mesh_key, m.pose) for m in desc.meshes]
 
 
+@pytest.mark.parametrize("name", ["living_room", "kitchen", "office", "bedroom", "workshop", "shop"])
+def test_fixed_furnished_rooms(name, cache):
+    """The paper's fixed furnished scenes in spirit: ten or more library models, textured floor and
+    walls, a window onto an HDRI sky, three lights, stages on furniture tops; the same every load."""
+    from specsynth.scenes import builtin_scenes
+    from specsynth.scenes.random_room import fixed_room
+
+    assert name in builtin_scenes()
+    sf, credits = fixed_room(name, cache)
+    furn = [m for m in sf.meshes if m.name.startswith("furniture_")]
+    assert len(furn) >= 10 and len({m.source.furniture for m in furn}) >= 6
+    assert any(m.name == "wall_north_below" for m in sf.meshes)  # the window opening
+    desc = load_scene(name, Path("."), cache=cache, clearance=0.5)
+    assert desc.world.kind == "envmap" and len(desc.lights) >= 3
+    for surface in ("floor", "wall_south"):
+        assert next(m for m in desc.meshes if m.name.startswith(surface)).material.texture
+    tops = [s for s in desc.stages.values() if s.height > 0.3]
+    assert len(tops) >= 2, sorted((s.name, s.height) for s in desc.stages.values())
+    assert {f"furniture:{m.source.furniture}" for m in furn} <= {c["asset"] for c in desc.credits}
+    again = load_scene(name, Path("."), cache=cache, clearance=0.5)
+    assert [(m.name, m.mesh_key, m.pose) for m in again.meshes] == [(m.name, m.mesh_key, m.pose) for m in desc.meshes]
+
+
+def test_random_room_parameters_from_the_spec(cache, tmp_path):
+    ref = SceneRef(name="random_room", room={"kinds": ["workshop"], "width": [4.0, 4.0], "depth": [3.5, 3.5],
+                                             "density": [1.5, 1.5]})
+    desc = load_scene(ref, Path("."), cache=cache, variant=5, clearance=0.5)
+    floor = next(m for m in desc.meshes if m.name == "floor")
+    v = read_mesh(floor.mesh_path).vertices
+    assert np.ptp(v[:, 0]) == pytest.approx(4.0, abs=1e-4) and np.ptp(v[:, 1]) == pytest.approx(3.5, abs=1e-4)
+    from specsynth.scenes.random_room import kind_items
+
+    ids = {i.id for i in kind_items("workshop")}
+    used = [c["asset"].removeprefix("furniture:") for c in desc.credits if c["asset"].startswith("furniture:")]
+    assert used and set(used) <= ids
+    with pytest.raises(ValueError, match="for the scene 'random_room' only"):
+        SceneRef(name="room", room={"kinds": ["shop"]})
+
+
 def test_random_room_without_textures_names_the_fix(tmp_path, monkeypatch):
     monkeypatch.setenv("SPECSYNTH_CACHE", str(tmp_path))
     with pytest.raises(SceneError, match="run `make install`"):

@@ -471,3 +471,14 @@ def test_editing_one_texture_reruns_exactly_the_arrangements_in_that_scene(byo, 
     p = plan(again, out)["stages"]
     assert p["arrange"]["to_run"] == len(in_byo) and p["arrange"]["cached"] == 6 - len(in_byo)
     assert p["render"]["cached"] == sum(1 for k in done["render"] if int(k[4:10]) not in in_byo) > 0
+
+
+def test_obj_whose_named_mtl_was_renamed_reads_its_own_stem(tmp_path):
+    """Sweet Home 3D ships kids_shelves.obj naming kids_shelves_sh3d.mtl beside kids_shelves.mtl."""
+    (tmp_path / "shelf.obj").write_text("mtllib shelf_sh3d.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl red\nf 1 2 3\n")
+    (tmp_path / "shelf.mtl").write_text("newmtl red\nKd 0.8 0.1 0.1\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "material library is missing" warning
+        (part,) = meshfiles.read_parts(tmp_path / "shelf.obj", tmp_path / "tex")
+    assert part.material.base_color == pytest.approx((0.8, 0.1, 0.1))
+    assert tmp_path / "shelf.mtl" in meshfiles.source_files(tmp_path / "shelf.obj")

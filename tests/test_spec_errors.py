@@ -36,7 +36,7 @@ CASES = [
     ("elevation-out-of-range", BASE + "cameras:\n  elevation: [10, 95]\n", 9, "cameras.elevation", "<= 90"),
     ("range-wrong-length", BASE + "cameras:\n  azimuth: [0, 90, 180]\n", 9, "cameras.azimuth", "at most 2"),
     ("threshold-above-one", BASE + "visibility:\n  threshold: 1.5\n", 9, "visibility.threshold", "less than or equal to 1"),
-    ("bad-quality-level", BASE + "quality:\n  level: ultra\n", 9, "quality.level", "'low', 'medium' or 'high'"),
+    ("bad-quality-level", BASE + "quality:\n  level: ultra\n", 9, "quality.level", "'low', 'medium', 'high', 'paper_low'"),
     ("bad-quality-override", BASE + "quality:\n  presets:\n    high: {aa: 0}\n", 10, "quality.presets.high.aa", "greater than or equal to 1"),
     ("no-objects", BASE.replace("  builtin: [duck]\n", "  instances: [1, 2]\n"), 2, "objects", "no objects"),
     ("ids-without-path", BASE.replace("  builtin: [duck]\n", "  builtin: [duck]\n  ids: [1, 2]\n"), 2, "objects", "set 'path' too"),

@@ -110,9 +110,14 @@ def parse_mtl(path: Path) -> dict[str, MtlMaterial]:
 
 
 def mtl_libraries(obj_path: Path) -> list[Path]:
+    """The material libraries an OBJ names. A named library that is missing while the OBJ's own
+    stem ``<name>.mtl`` sits beside it (exporters that renamed the file, e.g. Sweet Home 3D's
+    ``kids_shelves_sh3d.mtl`` shipped as ``kids_shelves.mtl``) is read from there instead."""
     libs = []
     for m in re.finditer(r"^[ \t]*mtllib[ \t]+(.+?)[ \t]*$", _text(obj_path), re.M):
-        libs.append(obj_path.parent / m.group(1))
+        lib = obj_path.parent / m.group(1)
+        own = obj_path.with_suffix(".mtl")
+        libs.append(own if not lib.is_file() and own.is_file() else lib)
     return libs
 
 
@@ -208,7 +213,8 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
     mats = materials_of(path)
     try:
         # skip_materials: trimesh would decode every texture; MTL is read above instead.
-        loaded = trimesh.load(str(path), force="scene", process=False, group_material=True, skip_materials=False)
+        loaded = trimesh.load(str(path), force="scene", process=False, group_material=True, skip_materials=False,
+                              resolver=_renamed_mtl_resolver(path))
     except Exception as e:  # trimesh raises many types for broken files
         raise MeshFileError(f"{path}: cannot read OBJ ({type(e).__name__})") from None
     groups: dict[str, list[MeshData]] = {}
@@ -239,6 +245,21 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
             ir = material_ir(path, bare, lib, texture_cache)
         parts.append(Part(name=unique, mesh=mesh, material=ir, material_name=n))
     return parts
+
+
+def _renamed_mtl_resolver(path: Path):
+    """trimesh's resolver for the OBJ's folder that, like :func:`mtl_libraries`, reads a missing
+    material library from the OBJ's own ``<stem>.mtl`` (so usemtl groups keep their names)."""
+    import trimesh
+
+    class Resolver(trimesh.resolvers.FilePathResolver):
+        def get(self, name: str):
+            own = path.with_suffix(".mtl")
+            if name.strip().endswith(".mtl") and not (path.parent / name.strip()).is_file() and own.is_file():
+                return own.read_bytes()
+            return super().get(name)
+
+    return Resolver(str(path))
 
 
 def _mesh(geom, transform) -> MeshData:

@@ -43,17 +43,43 @@ class SceneError(AssetError):
     """An invalid or unloadable scene file; the message names the file (and field, line)."""
 
 
-# Built-in scenes made by code, one variant per seed (each arrangement draws its own).
+# Built-in scenes made by code: one variant per seed (each arrangement draws its own), and the
+# fixed furnished rooms (one room each, the same in every arrangement).
 PROCEDURAL = ("random_room",)
+FIXED_ROOMS = tuple(random_room.FIXED_ROOMS)
 
 
 def builtin_scenes() -> list[str]:
-    return sorted([p.stem for p in BUILTIN_DIR.glob("*.yaml")] + list(PROCEDURAL))
+    return sorted([p.stem for p in BUILTIN_DIR.glob("*.yaml")] + list(PROCEDURAL) + list(FIXED_ROOMS))
+
+
+def _ref_name(ref) -> str | None:
+    return getattr(ref, "name", None) if not isinstance(ref, str) else ref
 
 
 def procedural_name(ref) -> str | None:
-    name = getattr(ref, "name", None) if not isinstance(ref, str) else ref
+    """The name of a scene that is a new room per arrangement (``random_room``), else None."""
+    name = _ref_name(ref)
     return name if name in PROCEDURAL else None
+
+
+def generated_name(ref) -> str | None:
+    """The name of any scene made by code (procedural or a fixed furnished room), else None."""
+    name = _ref_name(ref)
+    return name if name in PROCEDURAL or name in FIXED_ROOMS else None
+
+
+def room_params(ref) -> random_room.RoomParams:
+    """``random_room``'s parameters from a SceneRef's ``room:`` block (defaults without one)."""
+    opts = getattr(ref, "room", None)
+    if opts is None:
+        return random_room.RoomParams()
+    d0, d1 = opts.density
+    return random_room.RoomParams(
+        kinds=tuple(opts.kinds), width=tuple(opts.width), depth=tuple(opts.depth), height=tuple(opts.height),
+        wall_pieces=(round(6 * d0), max(round(6 * d0), round(10 * d1))),
+        middle_pieces=(round(1 * d0), max(round(1 * d0), round(2 * d1))),
+        categories=tuple(opts.categories) if opts.categories else None)
 
 
 def _scene_path(ref, spec_dir: Path) -> Path:
@@ -334,12 +360,16 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
     its largest object) only matters to a scene whose stages are found automatically."""
     cache = Path(cache) if cache is not None else assets.cache_dir()
     credits: list[dict] = []
-    if procedural_name(ref):
-        path = BUILTIN_DIR / f"{procedural_name(ref)}.py"
+    if generated_name(ref):
+        name = generated_name(ref)
+        path = Path(random_room.__file__)
         try:
-            sf, credits = random_room.random_room(int(variant or 0), cache)
+            if name in FIXED_ROOMS:
+                sf, credits = random_room.fixed_room(name, cache)
+            else:
+                sf, credits = random_room.random_room(int(variant or 0), cache, params=room_params(ref))
         except (furniture.LibraryError, textures.TextureLibraryError) as e:
-            raise SceneError(f"scene {procedural_name(ref)!r}: {e}") from None
+            raise SceneError(f"scene {name!r}: {e}") from None
     else:
         path = _scene_path(ref, spec_dir)
         sf = read_scene_file(path)
@@ -435,20 +465,22 @@ def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], c
 
 def declares_stages(ref, spec_dir: Path) -> bool:
     """Whether a scene lists its stages (else they are found in its geometry at load time)."""
-    return not procedural_name(ref) and not read_scene_file(_scene_path(ref, spec_dir)).auto_stages
+    return not generated_name(ref) and not read_scene_file(_scene_path(ref, spec_dir)).auto_stages
 
 
 def scene_fingerprint(ref, spec_dir: Path) -> str:
     """Content hash of a scene: its file and every file it references (no mesh conversion). A
     procedural scene's: its generator and the asset libraries it draws from."""
-    if procedural_name(ref):
-        h = hashlib.sha256(f"procedural {procedural_name(ref)} v{random_room.GENERATOR_VERSION} "
+    if generated_name(ref):
+        h = hashlib.sha256(f"procedural {generated_name(ref)} v{random_room.GENERATOR_VERSION} "
                            f"{assets.CONVERSION_VERSION}.{SCENE_VERSION}.{filemeshes.PARTS_VERSION}\n".encode())
         for archive in sorted(furniture.library_dir().glob("*.sh3f")):
             h.update(assets.file_digest(archive).encode())
         manifest = textures.folder(assets.cache_dir()) / "manifest.json"
         h.update(manifest.read_bytes() if manifest.is_file() else b"no textures")
         h.update(json.dumps(getattr(ref, "stages", None)).encode())
+        room = getattr(ref, "room", None)
+        h.update(room.model_dump_json().encode() if room is not None else b"default room")
         return h.hexdigest()
     path = _scene_path(ref, spec_dir)
     sf = read_scene_file(path)
@@ -477,6 +509,9 @@ def stage_table(name, spec_dir: Path | None = None) -> list[tuple[Stage, float, 
     """(stage, area m^2, height m) of a scene's stages, from the file alone (no meshes built)."""
     if procedural_name(name):
         return []  # a new room, and new stages, for every arrangement
+    if generated_name(name):
+        desc = load_scene(name, Path(spec_dir) if spec_dir is not None else Path.cwd())
+        return [(st, st.area, st.height) for st in desc.stages.values()]
     path = _scene_path(name, Path(spec_dir) if spec_dir is not None else Path.cwd())
     sf = read_scene_file(path)
     if sf.auto_stages:

@@ -20,13 +20,33 @@ import numpy as np
 from ..library import furniture, textures
 from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
-GENERATOR_VERSION = 2  # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed
-ROOM_KINDS = {
-    "living_room": ("Living room",),
-    "kitchen": ("Kitchen",),
-    "office": ("Office",),
-    "bedroom": ("Bedroom",),
+# 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed. 3: room parameters,
+# workshop and shop kinds, a lamp per room, fixed furnished rooms.
+GENERATOR_VERSION = 3
+# Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
+ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
+    "living_room": (("Living room",), None),
+    "kitchen": (("Kitchen",), None),
+    "office": (("Office",), None),
+    "bedroom": (("Bedroom",), None),
+    "workshop": (("Miscellaneous", "Office"), r"workbench|ladder|crate|barrel|box|pallet|trunck|logs|extinguisher|"
+                 r"recycling|furnace|mower|radiator|water heater|technical table|filing cabinet|safe|wooden table"),
+    "shop": (("Living room", "Kitchen", "Office", "Bedroom"), r"bookcase|shel|cabinet|chest|dresser|counter|rack|"
+             r"desk table|wooden table|freezer"),
 }
+
+
+@dataclass(frozen=True)
+class RoomParams:
+    """What a room is drawn from (metres; counts are pieces of furniture)."""
+
+    kinds: tuple[str, ...] = tuple(ROOM_KINDS)[:4]
+    width: tuple[float, float] = (3.6, 6.0)
+    depth: tuple[float, float] = (3.2, 5.0)
+    height: tuple[float, float] = (2.5, 2.9)
+    wall_pieces: tuple[int, int] = (6, 10)
+    middle_pieces: tuple[int, int] = (1, 2)
+    categories: tuple[str, ...] | None = None  # catalogue categories instead of the kind's
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
@@ -178,11 +198,34 @@ def kelvin_rgb(kelvin: float) -> tuple[float, float, float]:
     return tuple(float(c) for c in rgb / rgb.max())
 
 
-def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneFile, list[dict]]:
+def kind_items(kind: str, categories: tuple[str, ...] | None = None) -> list[furniture.FurnitureItem]:
+    import re
+
+    cats, names = ROOM_KINDS[kind]
+    if categories is not None:
+        cats, names = categories, None
+    pat = re.compile(names, re.I) if names else None
+    return [i for i in furniture.catalogue() if i.category in cats and (pat is None or pat.search(i.name))]
+
+
+def _lamp(rng, placed: list[Placed], W: float, D: float) -> LightDef:
+    """A warm lamp: above a piece of furniture (as a table or floor lamp would be), else a corner."""
+    if placed:
+        p = placed[int(rng.integers(len(placed)))]
+        x, y, z = p.x, p.y, p.item.size[2] + float(rng.uniform(0.3, 0.6))
+    else:
+        x, y, z = W / 2 - 0.4, D / 2 - 0.4, 1.5
+    return LightDef(kind="point", power=float(rng.uniform(10, 35)), color=kelvin_rgb(float(rng.uniform(2400, 3200))),
+                    translation=(float(x), float(y), float(z)))
+
+
+def random_room(seed: int, cache: Path, kind: str | None = None,
+                params: RoomParams = RoomParams()) -> tuple[SceneFile, list[dict]]:
     """The room of ``seed`` and the credits of every third-party asset in it."""
     rng = np.random.default_rng(seed)
-    kind = kind or list(ROOM_KINDS)[int(rng.integers(len(ROOM_KINDS)))]
-    W, D, H = float(rng.uniform(3.6, 6.0)), float(rng.uniform(3.2, 5.0)), float(rng.uniform(2.5, 2.9))
+    kind = kind or params.kinds[int(rng.integers(len(params.kinds)))]
+    W, D, H = (float(rng.uniform(*params.width)), float(rng.uniform(*params.depth)),
+               float(rng.uniform(*params.height)))
     win_w = float(rng.uniform(1.0, min(2.0, W - 1.2)))
     wx = float(rng.uniform(-W / 2 + 0.5 + win_w / 2, W / 2 - 0.5 - win_w / 2))
     window = (wx - win_w / 2, wx + win_w / 2, float(rng.uniform(0.8, 1.0)), float(rng.uniform(2.0, min(2.3, H - 0.2))))
@@ -201,8 +244,11 @@ def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneF
         *_walls(W, D, H, window, wall_mat),
     ]
     meshes += _rug(rng, W, D, felt)
-    items = _fits([i for i in furniture.catalogue() if i.category in ROOM_KINDS[kind]], W, D, H)
-    placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(6, 11)), n_middle=int(rng.integers(1, 3)))
+    items = _fits(kind_items(kind, params.categories), W, D, H)
+    if not items:
+        raise furniture.LibraryError(f"no furniture of kind {kind!r} fits a {W:.1f} x {D:.1f} x {H:.1f} m room")
+    placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(params.wall_pieces[0], params.wall_pieces[1] + 1)),
+                     n_middle=int(rng.integers(params.middle_pieces[0], params.middle_pieces[1] + 1)))
     woods = [t for t in library if t.kind == "floor" and "wood" in t.name]
     dressed_credits = []
     for k, p in enumerate(placed):
@@ -217,12 +263,34 @@ def random_room(seed: int, cache: Path, kind: str | None = None) -> tuple[SceneF
         LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
                               float(rng.uniform(1.6, H - 0.4)))),
+        _lamp(rng, placed, W, D),
     ]
     world = World(envmap=OUTDOOR_HDRIS[int(rng.integers(len(OUTDOOR_HDRIS)))], strength=float(rng.uniform(0.4, 0.9)),
                   rotation=float(rng.uniform(0, 360)))
-    sf = SceneFile(name=f"random_room_{kind}", description=f"random_room seed {seed}", meshes=meshes, lights=lights,
-                   world=world)
+    sf = SceneFile(name=f"random_room_{kind}", meshes=meshes, lights=lights, world=world,
+                   description=f"random_room seed {seed}, kind {kind}, {len(placed)} pieces of furniture")
     credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed] + dressed_credits
     if any(m.name == "rug" for m in meshes):
         credits.append(felt.credit)
     return sf, credits
+
+
+# Built-in furnished rooms: one fixed room per kind (a seed picked so that the room has ten or more
+# pieces of furniture with stages on them), furnished more densely than the random ones. They are
+# the paper's fixed artist-made scenes in spirit; random_room draws a new one per arrangement.
+FIXED_PARAMS = RoomParams(width=(5.0, 6.0), depth=(4.2, 5.0), height=(2.6, 2.9), wall_pieces=(11, 13),
+                          middle_pieces=(2, 2))
+FIXED_ROOMS: dict[str, tuple[str, int]] = {
+    "living_room": ("living_room", 101),
+    "kitchen": ("kitchen", 202),
+    "office": ("office", 303),
+    "bedroom": ("bedroom", 404),
+    "workshop": ("workshop", 505),
+    "shop": ("shop", 606),
+}
+
+
+def fixed_room(name: str, cache: Path) -> tuple[SceneFile, list[dict]]:
+    kind, seed = FIXED_ROOMS[name]
+    sf, credits = random_room(seed, cache, kind=kind, params=FIXED_PARAMS)
+    return sf.model_copy(update={"name": name}), credits

@@ -28,6 +28,25 @@ from .settings import PathSettings, blender_intrinsics, coerce_options, path_set
 
 __all__ = ["CyclesBackend"]
 
+
+def cycles_phases(events: list[tuple[float, str]], start: float, end: float, denoise: bool) -> dict[str, float]:
+    """Seconds per phase of one ``render.render`` call, from Cycles' own status lines (the
+    ``render_stats`` handler): scene sync (objects, BVH, shaders, kernels, images) until the first
+    ``Sample 0/N``; path tracing until the last ``Sample``; then finishing and writing the EXR.
+    Cycles reports its last sample only after denoising it, so with denoising on the two are one
+    phase, ``trace+denoise`` (``specsynth bench`` prices the denoiser: the same views with and without)."""
+    first_sample = next((t for t, s in events if "Sample " in s), None)
+    last_sample = max((t for t, s in events if "Sample " in s), default=None)
+    finished = next((t for t, s in events if "Finished" in s), None)
+    if first_sample is None or last_sample is None:
+        return {"cycles": end - start}
+    return {
+        "sync": first_sample - start,
+        "trace+denoise" if denoise else "trace": last_sample - first_sample,
+        "finish": (finished or end) - last_sample,
+        "write": end - (finished or end),
+    }
+
 # Data-blocks the backend keeps for its whole life (camera, mask material and world).
 _KEEP_PREFIX = "__specsynth"
 
@@ -93,6 +112,11 @@ class CyclesBackend:
 
         self._mask_mat = build_mask_material(bpy)
         self._mask_world = build_mask_world(bpy)
+        self._events: list[tuple[float, str]] = []
+        bpy.app.handlers.render_stats.append(self._on_stats)
+
+    def _on_stats(self, stats, *_):
+        self._events.append((time.perf_counter(), str(stats)))
 
     # ------------------------------------------------------------------ setup
 
@@ -118,11 +142,13 @@ class CyclesBackend:
         cy.denoiser = "OPENIMAGEDENOISE"
         cy.denoising_use_gpu = False
         cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-        cy.denoising_prefilter = "ACCURATE"
-        cy.denoising_quality = "HIGH"
         r = sc.render
         # Persistent data silently ignores changed sample counts (see measurements.md): keep it off.
+        # Persistent data keeps the synced scene (BVH, images) between renders; it silently ignores a
+        # changed sample count (measurements.md), so _apply turns it on only for a render whose
+        # settings equal the previous one's and off (a full sync) whenever one changes.
         r.use_persistent_data = False
+        self._last_settings: tuple | None = None
         r.threads_mode = "FIXED"
         r.threads = self.threads
         r.resolution_percentage = 100
@@ -215,6 +241,8 @@ class CyclesBackend:
         cy.glossy_bounces = ps.glossy_bounces
         cy.transmission_bounces = ps.transmission_bounces
         cy.use_denoising = ps.denoise
+        cy.denoising_prefilter = ps.denoise_prefilter
+        cy.denoising_quality = ps.denoise_quality
         cy.use_adaptive_sampling = ps.adaptive_threshold is not None
         if ps.adaptive_threshold is not None:
             cy.adaptive_threshold = ps.adaptive_threshold
@@ -222,19 +250,29 @@ class CyclesBackend:
         cy.sample_clamp_indirect = ps.clamp_indirect
         cy.pixel_filter_type = "BOX"
         cy.filter_width = 1.0
-        self._bpy.context.scene.render.threads = self.threads
+        r = self._bpy.context.scene.render
+        r.threads = self.threads
+        key = (ps, self.threads, r.resolution_x, r.resolution_y)
+        r.use_persistent_data = self.options.persistent and key == self._last_settings
+        self._last_settings = key
 
     def _render_exr(self, stem: str) -> np.ndarray:
         bpy = self._bpy
         sc = bpy.context.scene
         path = self._tmp / f"{stem}.exr"
         sc.render.filepath = str(path)
+        self._events.clear()
+        t0 = time.perf_counter()
         with _quiet_stdout():
             bpy.ops.render.render(write_still=True)
+        t1 = time.perf_counter()
         try:
-            return _read_exr_rgb(path)
+            rgb = _read_exr_rgb(path)
         finally:
             path.unlink(missing_ok=True)
+        denoise = bool(sc.cycles.use_denoising)
+        self.last_phases = {**cycles_phases(self._events, t0, t1, denoise), "readback": time.perf_counter() - t1}
+        return rgb
 
     def _require_scene(self) -> RenderScene:
         if self._scene_ir is None:
@@ -251,12 +289,16 @@ class CyclesBackend:
         t0 = time.perf_counter()
         self._set_camera(camera)
         self._apply(ps, seed)
+        t_setup = time.perf_counter()
         linear = self._render_exr("beauty")
         seconds = time.perf_counter() - t0
         check_finite(linear, "cycles render")
         stats = ps.stats()
         stats.update(seconds=round(seconds, 4), threads=self.threads, seed=int(seed) % (2**31))
-        return RenderResult(rgb=linear_to_srgb8(linear), linear=linear, stats=stats)
+        t_tone = time.perf_counter()
+        rgb = linear_to_srgb8(linear)
+        stats["phases"] = {"setup": t_setup - t0, **self.last_phases, "tonemap": time.perf_counter() - t_tone}
+        return RenderResult(rgb=rgb, linear=linear, stats=stats)
 
     def render_index_masks(self, camera: CameraIR) -> np.ndarray:
         """HxW int32 instance map from Cycles itself: -1 background/scene geometry, else MeshInstance.inst.
@@ -277,6 +319,8 @@ class CyclesBackend:
         )  # fmt: skip
         hidden = [ob for ob in sc.objects if ob.type == "LIGHT" and not ob.hide_render]
         world = sc.world
+        sc.render.use_persistent_data = False  # other settings, overrides: a full sync, before and after
+        self._last_settings = None
         try:
             cy.samples = 1
             cy.max_bounces = 0

@@ -95,6 +95,8 @@ class PathSettings:
     glossy_skipped: bool
     transmission_skipped: bool
     denoise: bool
+    denoise_prefilter: str
+    denoise_quality: str
     adaptive_threshold: float | None
     clamp_indirect: float
 
@@ -119,6 +121,8 @@ def path_settings(
         glossy_skipped=not has_glossy,
         transmission_skipped=not has_transmission,
         denoise=options.denoise,
+        denoise_prefilter=options.denoise_prefilter.upper(),
+        denoise_quality=options.denoise_quality.upper(),
         adaptive_threshold=options.adaptive_threshold,
         # 0 disables clamping; Blender's default of 10 biases energy, so only clamp when asked to.
         clamp_indirect=float(clamp) if clamp else 0.0,

@@ -22,14 +22,14 @@ from .options import MitsubaOptions
 from .variant import choose_variant
 
 
-def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> np.ndarray:
+def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray, quality: str = "high") -> np.ndarray:
     """OpenImageDenoise (HDR, guided by albedo and normals) on the CPU, as Cycles runs it."""
     try:
         import pyoidn
     except ImportError as e:
         raise RuntimeError("mitsuba: denoise needs pyoidn (pip install pyoidn; make install does)") from e
     out = pyoidn.denoise(np.ascontiguousarray(linear, np.float32), np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
-                         np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True)
+                         np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True, quality=quality)
     return np.ascontiguousarray(np.maximum(np.asarray(out, np.float32), 0.0))
 
 
@@ -99,6 +99,7 @@ class MitsubaBackend:
         if clamp is not None and not self._clamp_warned:
             warnings.warn("Mitsuba's path integrator has no radiance clamp; 'quality.clamp' is ignored", stacklevel=2)
             self._clamp_warned = True
+        t_setup = time.perf_counter()
         st = mapping.integrator_settings(quality, self.options.sampler, self.options.samples)
         sensor, sset = self._sensor_for(camera, st)
         self._set_pose(camera)
@@ -108,16 +109,19 @@ class MitsubaBackend:
         # does not trigger a recompilation in JIT variants.
         seed32 = mapping.fold_seed(seed)
         seed_arg = dr.opaque(mi.UInt32, seed32) if dr.is_jit_v(mi.Float) else seed32
-        img = np.array(mi.render(self._scene, sensor=sensor, integrator=integrator, seed=seed_arg, spp=st.spp),
-                       dtype=np.float32)
+        image = mi.render(self._scene, sensor=sensor, integrator=integrator, seed=seed_arg, spp=st.spp)
+        dr.eval(image)
+        t_trace = time.perf_counter()
+        img = np.array(image, dtype=np.float32)
         linear = img[..., :3]
         seconds = time.perf_counter() - t0
         check_finite(linear, f"mitsuba render ({self.variant})")
         linear = np.ascontiguousarray(np.maximum(linear, 0.0))
+        t_read = time.perf_counter()
         denoise_seconds = None
         if self.options.denoise:
             t1 = time.perf_counter()
-            linear = denoise(linear, albedo=img[..., 3:6], normal=img[..., 6:9])
+            linear = denoise(linear, albedo=img[..., 3:6], normal=img[..., 6:9], quality=self.options.denoise_quality)
             denoise_seconds = time.perf_counter() - t1
         stats = {
             "variant": self.variant,
@@ -137,7 +141,13 @@ class MitsubaBackend:
             stats["clamp_ignored"] = clamp
         if denoise_seconds is not None:
             stats["denoise_seconds"] = denoise_seconds
-        return RenderResult(rgb=linear_to_srgb8(linear), linear=linear, stats=stats)
+        t_tone = time.perf_counter()
+        rgb = linear_to_srgb8(linear)
+        # Scene sync happens in load(); here: camera/integrator set-up (and a kernel compile on a
+        # new setting), path tracing (kernel launch to evaluated image), read-back, denoise, tone map.
+        stats["phases"] = {"setup": t0 - t_setup, "trace": t_trace - t0, "readback": t_read - t_trace,
+                           "denoise": denoise_seconds or 0.0, "tonemap": time.perf_counter() - t_tone}
+        return RenderResult(rgb=rgb, linear=linear, stats=stats)
 
     def close(self) -> None:
         self._scene = None

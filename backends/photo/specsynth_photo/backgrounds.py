@@ -167,8 +167,10 @@ def _pano_view(pano: np.ndarray, width: int, height: int, rng: np.random.Generat
     R_pitch = np.array([[1, 0, 0], [0, cp, sp], [0, -sp, cp]])
     R_yaw = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     R = (R_yaw @ R_pitch @ R_roll).astype(np.float32)
-    d = d @ R.T
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    # Element-wise, not ``d @ R.T``: BLAS may pick kernels by memory alignment and thread count,
+    # and a last-bit difference here can flip an 8-bit pixel; these bytes must depend on the seed only.
+    d = np.stack([d[..., 0] * R[i, 0] + d[..., 1] * R[i, 1] + d[..., 2] * R[i, 2] for i in range(3)], axis=-1)
+    d /= np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)[..., None]
     lon = np.arctan2(d[..., 0], d[..., 2])
     lat = np.arcsin(np.clip(d[..., 1], -1.0, 1.0))
     u = (lon / (2 * np.pi) + 0.5) * pw - 0.5
@@ -186,7 +188,7 @@ def _pano_view(pano: np.ndarray, width: int, height: int, rng: np.random.Generat
     lin = (pano[v0, u0] * (1 - au) + pano[v0, u1] * au) * (1 - av) + (pano[v1, u0] * (1 - au) + pano[v1, u1] * au) * av
 
     # Global Reinhard operator on luminance: scale the log-average to the key, compress L/(1+L).
-    lum = lin @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    lum = np.float32(0.2126) * lin[..., 0] + np.float32(0.7152) * lin[..., 1] + np.float32(0.0722) * lin[..., 2]
     log_avg = float(np.exp(np.mean(np.log(lum + 1e-4))))
     scaled_lum = lum * (key / log_avg)
     ratio = (key / log_avg) / (1.0 + scaled_lum)
