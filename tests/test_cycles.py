@@ -229,6 +229,35 @@ def test_changed_samples_are_honoured(backend, meshes):
 
 
 @pytest.mark.slow
+def test_persistent_scene_honours_every_change(backend, meshes):
+    """With persistent data (the default) a render reuses the synced scene only while no setting
+    changes: a sequence changing samples, denoising, bounces, seed and camera gives the same pixels
+    as fully synced renders."""
+    backend.load(_lit_scene(meshes))
+    medium = PAPER_PRESETS["medium"]
+    steps = [(LOW, 1, camera(), False), (LOW, 2, camera(), False), (medium, 2, camera(), False),
+             (medium, 2, camera(), True), (LOW, 3, camera(C=(0.3, 0.0, 5.0)), True), (LOW, 3, camera(), False)]
+    opts = backend.options
+
+    def run():
+        out = []
+        for q, seed, cam, denoise in steps:
+            backend.options = backend.options.model_copy(update={"denoise": denoise})
+            out.append(backend.render(cam, q, seed).linear)
+        return out
+
+    try:
+        kept = run()
+        backend.options = opts.model_copy(update={"persistent": False})
+        synced = run()
+    finally:
+        backend.options = opts
+    for k, (a, b) in enumerate(zip(kept, synced)):
+        assert a.tobytes() == b.tobytes(), f"step {k}: {steps[k][:2]}"
+    assert kept[0].tobytes() != kept[1].tobytes() and kept[1].tobytes() != kept[2].tobytes()
+
+
+@pytest.mark.slow
 def test_glossy_bounces_skipped_only_without_glossy_material(backend, meshes):
     backend.load(_lit_scene(meshes, glossy=False))
     q = QualityPreset(**{**PAPER_PRESETS["medium"].model_dump(), "aa": 1, "diffuse_rays": 1, "specular_rays": 1})
