@@ -33,6 +33,7 @@ from .library.cache import cache_dir
 from .library.hdris import SOURCE as HDRI_SOURCE, builtin_hdris, studiolights_dir  # noqa: F401  (builtin_hdris re-exported)
 from .meshfiles import ply, single, urdf as urdf_reader
 from .meshfiles.part import MeshFileError
+from .meshfiles.sniff import check_mesh_file
 from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
 
 # Bump when the conversion changes its output for the same input: every cached mesh and every
@@ -375,6 +376,10 @@ class _Source:
 def _mesh_and_material_files(mesh: Path, what: str) -> list[Path]:
     if not mesh.is_file():
         raise AssetError(f"{what}: mesh file not found: {mesh}")
+    try:
+        check_mesh_file(mesh, what)
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
     out = [mesh]
     if mesh.suffix.lower() == ".obj":
         tex, _ = _mtl_texture(mesh)

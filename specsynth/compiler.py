@@ -8,6 +8,7 @@ depends only on the root seed and that id (``specsynth.seeds``), and a content k
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -39,6 +40,38 @@ STAGE_FIELDS = {
         "outputs.exr",
     ),
 }
+
+# Guards on work and memory, checked before anything runs (overridable: the estimate is rough).
+MAX_IMAGES = 100_000_000
+BYTES_PER_PIXEL = 200  # per worker: renderer film and passes (~160 B/px in Cycles) + annotation buffers
+MAX_WORKER_BYTES = 8 << 30
+
+
+def _limit(env: str, default: float) -> float:
+    value = os.environ.get(env)
+    try:
+        return float(value) if value else default
+    except ValueError:
+        return default
+
+
+def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
+    """Located problems for a plan or an image too large to build on purpose."""
+    problems = []
+    images = spec.arrangements.count * spec.cameras.per_arrangement
+    max_images = _limit("SPECSYNTH_MAX_IMAGES", MAX_IMAGES)
+    if images > max_images:
+        problems.append(loaded.locate("arrangements.count", f"{images:,} images planned, over the limit of "
+                                      f"{int(max_images):,} (set SPECSYNTH_MAX_IMAGES to raise it)"))
+    px = spec.intrinsics.width * spec.intrinsics.height
+    need = px * BYTES_PER_PIXEL
+    max_bytes = _limit("SPECSYNTH_MAX_WORKER_GB", MAX_WORKER_BYTES / (1 << 30)) * (1 << 30)
+    if need > max_bytes:
+        problems.append(loaded.locate("intrinsics.width", f"a {spec.intrinsics.width} x {spec.intrinsics.height} image "
+                                      f"needs about {need / (1 << 30):.1f} GiB per worker ({BYTES_PER_PIXEL} B/pixel), over "
+                                      f"the limit of {max_bytes / (1 << 30):.1f} GiB (set SPECSYNTH_MAX_WORKER_GB to raise it)"))
+    return problems
+
 
 def arr_id(arr: int) -> str:
     return f"arr={arr:06d}"
@@ -169,7 +202,9 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     """Resolve asset and scene fingerprints and derive the per-stage input digests."""
     spec = loaded.spec
     data = spec.model_dump(mode="json")
-    problems = []
+    problems = check_budgets(spec, loaded)
+    if problems:  # before hashing assets or loading scenes: refusing is the cheap part
+        raise SpecError(problems)
     try:
         asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
     except AssetError as e:
@@ -215,7 +250,15 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     stage_inputs["view"]["annotator"] = f"pyrender {_dist_version('pyrender')}"
     backend = backend_fingerprint(spec.backend.name)
     stage_inputs["render"]["backend"] = backend
-    for folder in spec.backend.input_folders():
+    for option, folder in spec.backend.input_folders().items():
+        try:
+            root = expand_path(folder, loaded.directory, f"backend.{option}")
+        except AssetError as e:
+            raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
+        if not root.is_dir():
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} not found ({root})")])
+        if not any(p.is_file() for p in root.rglob("*")):
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
         stage_inputs["render"][f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
     stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
     stage_inputs["arrange"].update(scene_hashes)  # for diff attribution; keyed per job (arrange_job)

@@ -49,26 +49,28 @@ class MeshData:
         return np.stack([self.vertices.min(0), self.vertices.max(0)])
 
 
-def _vertex_dtype(mesh: MeshData) -> np.dtype:
+def _vertex_dtype(mesh: MeshData, uv_names: tuple[str, str] = ("u", "v"), colors_first: bool = False) -> np.dtype:
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if mesh.normals is not None:
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
-    if mesh.uv is not None:
-        fields += [("u", "<f4"), ("v", "<f4")]
-    if mesh.colors is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
-    return np.dtype(fields)
+    uv = [(uv_names[0], "<f4"), (uv_names[1], "<f4")] if mesh.uv is not None else []
+    colors = [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")] if mesh.colors is not None else []
+    return np.dtype(fields + (colors + uv if colors_first else uv + colors))
 
 
-def mesh_bytes(mesh: MeshData, comments: tuple[str, ...] = ()) -> bytes:
-    dt = _vertex_dtype(mesh)
+def mesh_bytes(mesh: MeshData, comments: tuple[str, ...] = (), *, scale: float = 1.0,
+               uv_names: tuple[str, str] = ("u", "v"), colors_first: bool = False) -> bytes:
+    """Binary little-endian PLY: the one PLY writer (normalised meshes here, BOP models with
+    ``scale=1000``, ``uv_names=("texture_u", "texture_v")``, ``colors_first=True``)."""
+    dt = _vertex_dtype(mesh, uv_names, colors_first)
     n = len(mesh.vertices)
     vert = np.empty(n, dtype=dt)
-    vert["x"], vert["y"], vert["z"] = mesh.vertices.astype(np.float32).T
+    v = mesh.vertices if scale == 1.0 else mesh.vertices.astype(np.float64) * scale
+    vert["x"], vert["y"], vert["z"] = v.astype(np.float32).T
     if mesh.normals is not None:
         vert["nx"], vert["ny"], vert["nz"] = mesh.normals.astype(np.float32).T
     if mesh.uv is not None:
-        vert["u"], vert["v"] = mesh.uv.astype(np.float32).T
+        vert[uv_names[0]], vert[uv_names[1]] = mesh.uv.astype(np.float32).T
     if mesh.colors is not None:
         c = mesh.colors.astype(np.uint8)
         vert["red"], vert["green"], vert["blue"], vert["alpha"] = c.T

@@ -373,9 +373,10 @@ class BackendOptions(Strict):
         "high", description="OpenImageDenoise filter quality: 'balanced' costs about half of 'high' on the CPU.")
     samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count.")
 
-    def input_folders(self) -> tuple[str, ...]:
-        """Folders (other than assets) whose files change renders; the compiler fingerprints them."""
-        return ()
+    def input_folders(self) -> dict[str, str]:
+        """Folders (other than assets) whose files change renders, by option name: the compiler
+        checks that each exists and holds files, and fingerprints them."""
+        return {}
 
     def relative_to(self, spec_dir) -> "BackendOptions":
         """These options with relative paths resolved against the spec's folder."""

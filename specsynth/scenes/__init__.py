@@ -28,6 +28,8 @@ from ..meshio import MeshData, read_mesh
 from ..meshfiles import primitives as procedural
 from .. import meshfiles
 from ..library import furniture, textures
+from ..meshfiles.part import MeshFileError
+from ..meshfiles.sniff import check_mesh_file
 from . import autostage, filemeshes, furnish, gltfscene, random_room
 from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
 from .types import SceneDesc, Stage
@@ -211,6 +213,11 @@ def _source_files(m: SceneMesh, scene_path: Path) -> tuple[Path | None, list[Pat
         return None, [], None
     what = f"{scene_path}: meshes.{m.name}.source"
     p = assets.resolve_data_ref(m.source, scene_path.parent, what)
+    if p.is_file():
+        try:
+            check_mesh_file(p, what)
+        except MeshFileError as e:
+            raise AssetError(str(e)) from None
     if p.suffix.lower() == ".urdf":
         files, tex = [p], None
         for vis in assets.parse_urdf(p):

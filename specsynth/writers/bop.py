@@ -23,7 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..assets import ObjectAsset
-from ..meshio import MeshData, read_mesh
+from ..meshio import MeshData, mesh_bytes, read_mesh
 from ..records import ImageRecord
 from ..spec import Intrinsics, Metadata, Outputs
 from .dataset import (
@@ -158,35 +158,8 @@ def _chunk_files(rec: ImageRecord, store: Path, im_id: int) -> list[tuple[str, s
 def bop_model_bytes(mesh: MeshData, texture_file: str | None = None) -> bytes:
     """Binary PLY in millimetres with the property names ``inout.load_ply`` understands
     (``texture_u``/``texture_v``, ``comment TextureFile``) and only types it can unpack."""
-    n = len(mesh.vertices)
-    fields: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    if mesh.normals is not None:
-        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
-    if mesh.colors is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
-    if mesh.uv is not None:
-        fields += [("texture_u", "<f4"), ("texture_v", "<f4")]
-    vert = np.empty(n, dtype=np.dtype(fields))
-    xyz = (mesh.vertices.astype(np.float64) * 1000.0).astype(np.float32)
-    vert["x"], vert["y"], vert["z"] = xyz.T
-    if mesh.normals is not None:
-        vert["nx"], vert["ny"], vert["nz"] = mesh.normals.astype(np.float32).T
-    if mesh.colors is not None:
-        vert["red"], vert["green"], vert["blue"], vert["alpha"] = mesh.colors.astype(np.uint8).T
-    if mesh.uv is not None:
-        vert["texture_u"], vert["texture_v"] = mesh.uv.astype(np.float32).T
-    faces = np.empty(len(mesh.faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    faces["n"] = 3
-    faces["i"] = mesh.faces.astype(np.int32)
-
-    type_names = {"<f4": "float", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", "comment units: millimetres (written by specsynth)"]
-    if texture_file:
-        header.append(f"comment TextureFile {texture_file}")
-    header.append(f"element vertex {n}")
-    header += [f"property {type_names[t]} {name}" for name, t in fields]
-    header += [f"element face {len(mesh.faces)}", "property list uchar int vertex_indices", "end_header"]
-    return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + faces.tobytes()
+    comments = ("units: millimetres (written by specsynth)",) + ((f"TextureFile {texture_file}",) if texture_file else ())
+    return mesh_bytes(mesh, comments, scale=1000.0, uv_names=("texture_u", "texture_v"), colors_first=True)
 
 
 def write_models(models_dir: Path, models: Sequence[ObjectAsset]) -> dict[str, int]:

@@ -19,8 +19,8 @@ class PhotoOptions(BackendOptions):
     ambient: FloatRange(0.0, 10.0) = Field((0.1, 0.4), description="Ambient light intensity range.")
     augment: Augment = Augment()
 
-    def input_folders(self) -> tuple[str, ...]:
-        return () if self.backgrounds == "builtin" else (self.backgrounds,)
+    def input_folders(self) -> dict[str, str]:
+        return {} if self.backgrounds == "builtin" else {"backgrounds": self.backgrounds}
 
     def relative_to(self, spec_dir) -> PhotoOptions:
         if self.backgrounds == "builtin" or Path(self.backgrounds).expanduser().is_absolute():

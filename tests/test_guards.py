@@ -1,0 +1,73 @@
+"""Guards on huge or wrong input, refused by `validate` before any work (issue: hardening)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from specsynth.compiler import compile_spec
+from specsynth.yamlio import SpecError, load_spec
+
+SPEC = """\
+name: g
+objects: {builtin: [duck]}
+scenes:
+  - name: room
+backend: {name: photo}
+"""
+
+
+def _problems(tmp_path, text, *overrides):
+    f = tmp_path / "s.yaml"
+    f.write_text(text)
+    with pytest.raises(SpecError) as e:
+        compile_spec(load_spec(f, list(overrides)))
+    return e.value.problems
+
+
+def test_huge_image_is_refused_with_its_estimate(tmp_path, monkeypatch):
+    (pr,) = _problems(tmp_path, SPEC, "intrinsics={width: 16384, height: 16384, fx: 9000, fy: 9000, cx: 8191.5, cy: 8191.5}")
+    assert pr.path == "intrinsics.width" and "GiB per worker" in pr.message and "SPECSYNTH_MAX_WORKER_GB" in pr.message
+    monkeypatch.setenv("SPECSYNTH_MAX_WORKER_GB", "100")  # overridable
+    f = tmp_path / "s.yaml"
+    compile_spec(load_spec(f, ["intrinsics={width: 16384, height: 16384, fx: 9000, fy: 9000, cx: 8191.5, cy: 8191.5}"]))
+
+
+def test_huge_plan_is_refused(tmp_path):
+    (pr,) = _problems(tmp_path, SPEC, "arrangements.count=10000000", "cameras.per_arrangement=100")
+    assert pr.path == "arrangements.count" and "1,000,000,000 images planned" in pr.message
+
+
+def test_password_file_as_scene_mesh_is_refused_without_echo(tmp_path):
+    (tmp_path / "scene.yaml").write_text("name: pw\nmeshes:\n  - name: floor\n    source: passwd.ply\n"
+                                         "stages:\n  - {name: floor, polygon: [[-1, -1], [1, -1], [1, 1], [-1, 1]], height: 0}\n")
+    (tmp_path / "passwd.ply").write_text("root:x:0:0:root:/root:/bin/bash\n")
+    (pr,) = _problems(tmp_path, SPEC.replace("  - name: room\n", "  - file: scene.yaml\n"))
+    assert "does not start like a PLY file" in pr.message and "root:x" not in pr.message
+    (tmp_path / "scene.yaml").write_text((tmp_path / "scene.yaml").read_text().replace("passwd.ply", "/etc/passwd"))
+    (pr,) = _problems(tmp_path, SPEC.replace("  - name: room\n", "  - file: scene.yaml\n"))
+    assert "not a mesh file by its name" in pr.message and "root:" not in pr.message
+
+
+def test_missing_or_empty_backgrounds_folder_is_located(tmp_path):
+    (tmp_path / "empty").mkdir()
+    (pr,) = _problems(tmp_path, SPEC.replace("{name: photo}", "{name: photo, backgrounds: empty}"))
+    assert (pr.line, pr.path) == (5, "backend.backgrounds") and "holds no files" in pr.message
+    (pr,) = _problems(tmp_path, SPEC.replace("{name: photo}", "{name: photo, backgrounds: nowhere}"))
+    assert pr.path == "backend.backgrounds" and "not found" in pr.message
+
+
+def test_collision_hull_of_a_huge_mesh_is_bounded():
+    from specsynth.physics import HULL_MAX_POINTS, _convex_hull_vertices
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(HULL_MAX_POINTS * 3, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)  # a sphere of 600k points: all on the hull
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        hull = _convex_hull_vertices(pts)
+    assert any("collision hull" in str(w.message) for w in caught)
+    assert len(hull) <= HULL_MAX_POINTS + 14
+    assert np.allclose(hull.min(0), pts.min(0)) and np.allclose(hull.max(0), pts.max(0))  # extent kept
