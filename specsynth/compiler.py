@@ -38,6 +38,8 @@ STAGE_FIELDS = {
         "outputs.depth_scale",
         "outputs.masks",
         "outputs.exr",
+        "outputs.normals",
+        "outputs.nocs",
     ),
 }
 

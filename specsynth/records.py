@@ -120,6 +120,8 @@ class ImageRecord:
     mask_files: list[str]  # "mask_000000.png", ... in gt order (0/255 PNG)
     mask_visib_files: list[str]
     exr_file: str | None = None
+    normals_file: str | None = None  # float32 EXR, camera-space unit normals
+    nocs_file: str | None = None  # float32 EXR, NOCS in [0, 1]
     render_seconds: float = 0.0
     stats: dict[str, Any] = field(default_factory=dict)
 

@@ -428,6 +428,11 @@ class Outputs(Strict):
     )
     masks: bool = True
     exr: bool = Field(False, description="Also write the linear beauty pass as OpenEXR.")
+    normals: bool = Field(False, description="Also write camera-space unit surface normals (OpenCV axes: x right, "
+                          "y down, z forward), float32 OpenEXR RGB = (nx, ny, nz), 0 where empty, into normals/.")
+    nocs: bool = Field(False, description="Also write NOCS maps (model-frame point / bounding-box diagonal + 0.5, "
+                       "in [0, 1]; Wang et al. 2019) of every visible object pixel, float32 OpenEXR RGB, 0 "
+                       "elsewhere (mask_visib says whose), into nocs/.")
     chunk_size: int = Field(1000, ge=1, le=100_000, description="Images per BOP chunk folder.")
 
     @field_validator("depth_scale")

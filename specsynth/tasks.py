@@ -167,6 +167,24 @@ class Worker:
                 self._distractors[a.name] = a
         return [self._distractors[n] for n in names]
 
+    def _geometry_maps(self, wd: Path, cam, ann) -> tuple[str | None, str | None]:
+        """normals.exr and nocs.exr from the annotation's depth, when the spec asks for them."""
+        from .maps import nocs_map, normals_from_depth
+        from .writers.images import write_exr
+
+        out = self.spec.outputs
+        normals_file = nocs_file = None
+        if out.normals:
+            normals_file = "normals.exr"
+            write_exr(wd / normals_file, normals_from_depth(ann.depth, cam.K_array))
+        if out.nocs:
+            by_id = {a.obj_id: a for a in self.assets()}
+            diagonals = [float(np.linalg.norm(by_id[g.obj_id].extents)) for g in ann.instances]
+            poses = [(g.R_m2c, g.t_m2c) for g in ann.instances]
+            nocs_file = "nocs.exr"
+            write_exr(wd / nocs_file, nocs_map(ann.depth, cam.K_array, ann.masks_visib, poses, diagonals))
+        return normals_file, nocs_file
+
     def _swapped_credits(self, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:
         """Credits of the library textures that randomisation puts into this arrangement's scene
         (exactly what its renders will show: the same function of the same seed)."""
@@ -360,6 +378,7 @@ class Worker:
             if spec.outputs.exr and res.linear is not None:
                 exr_file = "rgb.exr"
                 write_exr(wd / exr_file, res.linear)
+            normals_file, nocs_file = self._geometry_maps(wd, cam, ann)
             t4 = time.perf_counter()
             stats = dict(res.stats)
             stats["load_seconds"] = load_seconds
@@ -371,7 +390,7 @@ class Worker:
                 seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
                 R_w2c=view.R_w2c, t_w2c=view.t_w2c, depth_scale=float(scale), instances=ann.instances,
                 rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
-                exr_file=exr_file, render_seconds=seconds, stats=stats,
+                exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, render_seconds=seconds, stats=stats,
             )
             t5 = time.perf_counter()
             self.store.commit("render", job.key, wd, rec.to_json())

@@ -48,6 +48,8 @@ MANAGED_DIRS: dict[str, re.Pattern] = {
     "mask": _MASK_NAME,
     "mask_visib": _MASK_NAME,
     "exr": _IMAGE_NAME,
+    "normals": _IMAGE_NAME,
+    "nocs": _IMAGE_NAME,
 }
 CHUNK_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json")
 _CHUNK_NAME = re.compile(r"^\d{6}$")
@@ -145,6 +147,9 @@ def _chunk_files(rec: ImageRecord, store: Path, im_id: int) -> list[tuple[str, s
         files.append(("depth", f"{im_id:06d}.png", store / rec.depth_file))
     if rec.exr_file:
         files.append(("exr", f"{im_id:06d}.exr", store / rec.exr_file))
+    for kind, name in (("normals", rec.normals_file), ("nocs", rec.nocs_file)):
+        if name:
+            files.append((kind, f"{im_id:06d}.exr", store / name))
     for gt_id, name in enumerate(rec.mask_files):
         files.append(("mask", f"{im_id:06d}_{gt_id:06d}.png", store / name))
     for gt_id, name in enumerate(rec.mask_visib_files):

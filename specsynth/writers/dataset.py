@@ -35,6 +35,8 @@ def image_relpaths(split: str, rec: ImageRecord, chunk_size: int) -> dict[str, s
         "rgb": f"{base}/rgb/{im_id:06d}{Path(rec.rgb_file).suffix.lower()}",
         "depth": f"{base}/depth/{im_id:06d}.png" if rec.depth_file else None,
         "exr": f"{base}/exr/{im_id:06d}.exr" if rec.exr_file else None,
+        "normals": f"{base}/normals/{im_id:06d}.exr" if rec.normals_file else None,
+        "nocs": f"{base}/nocs/{im_id:06d}.exr" if rec.nocs_file else None,
     }
 
 

@@ -53,6 +53,8 @@ IMAGES_SCHEMA = pa.schema(
         ("rgb", pa.string()),
         ("depth", pa.string()),
         ("exr", pa.string()),
+        ("normals", pa.string()),
+        ("nocs", pa.string()),
     ]
 )
 
@@ -133,7 +135,8 @@ def write_parquet(
             def rel(name: str | None) -> str | None:
                 return None if not name else os.path.relpath(Path(store) / name, out).replace(os.sep, "/")
 
-            paths = {"rgb": rel(rec.rgb_file), "depth": rel(rec.depth_file), "exr": rel(rec.exr_file)}
+            paths = {"rgb": rel(rec.rgb_file), "depth": rel(rec.depth_file), "exr": rel(rec.exr_file),
+                     "normals": rel(rec.normals_file), "nocs": rel(rec.nocs_file)}
         image_rows.append(
             {
                 "chunk": chunk, "im_id": im_id, "index": rec.index, "arr": rec.arr, "cam": rec.cam,

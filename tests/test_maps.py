@@ -1,0 +1,134 @@
+"""Normals and NOCS maps: the maths on exact planes (hypothesis), then real builds read back."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from PIL import Image
+
+from specsynth.build import build
+from specsynth.compiler import compile_spec
+from specsynth.maps import backproject, normals_from_depth
+from specsynth.yamlio import load_spec
+
+K = np.array([[80.0, 0.0, 39.5], [0.0, 82.0, 29.5], [0.0, 0.0, 1.0]])
+
+
+def _plane_depth(n: np.ndarray, d: float, K: np.ndarray, w=80, h=60) -> np.ndarray:
+    """z-depth of the plane n . x = d seen by camera K (every ray hits it in front)."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    return (d / (rays @ n)).astype(np.float32)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-0.6, 0.6), st.floats(-0.6, 0.6), st.floats(0.5, 5.0))
+def test_normals_of_a_plane_are_its_normal(nx, ny, dist):
+    n = np.array([nx, ny, -1.0])
+    n /= np.linalg.norm(n)  # facing the camera (-z side)
+    depth = _plane_depth(-n, dist, K)  # points x with (-n) . x = dist: in front of the camera
+    assert (depth > 0).all()
+    got = normals_from_depth(depth, K)
+    assert np.allclose(np.linalg.norm(got, axis=-1), 1.0, atol=1e-5)
+    assert np.abs(got - n).max() < 2e-3
+
+
+def test_normals_at_an_edge_come_from_their_own_surface():
+    depth = np.full((60, 80), 2.0, np.float32)
+    depth[:, 40:] = 1.0  # a step: two fronto-parallel planes
+    got = normals_from_depth(depth, K)
+    assert np.allclose(got[:, 1:-1], (0.0, 0.0, -1.0), atol=1e-6)  # no slanted normal on the step
+    depth[:, :5] = 0
+    assert np.all(normals_from_depth(depth, K)[:, :5] == 0)
+
+
+def test_backproject_inverts_projection():
+    depth = np.random.default_rng(1).uniform(0.5, 3, (60, 80)).astype(np.float32)
+    p = backproject(depth, K)
+    uvw = p.reshape(-1, 3) @ K.T
+    u, v = uvw[:, 0] / uvw[:, 2], uvw[:, 1] / uvw[:, 2]
+    uu, vv = np.meshgrid(np.arange(80), np.arange(60))
+    assert np.allclose(u, uu.ravel(), atol=1e-6) and np.allclose(v, vv.ravel(), atol=1e-6)
+
+
+SPEC = """\
+name: maps
+seed: 4
+intrinsics: {width: 96, height: 72, fx: 86.0, fy: 86.0, cx: 47.5, cy: 35.5}
+objects: {builtin: [duck, mug, jenga]}
+scenes: [{name: room}]
+arrangements: {count: 1}
+cameras: {per_arrangement: 2, distance: [0.35, 0.6]}
+backend: {name: photo}
+outputs: {image_format: png, normals: true, nocs: true}
+"""
+
+
+def _exr(path) -> np.ndarray:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        return np.asarray(f.channels()["RGB"].pixels, dtype=np.float32)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    d = tmp_path_factory.mktemp("maps")
+    (d / "s.yaml").write_text(SPEC)
+    s = build(compile_spec(load_spec(d / "s.yaml")), d / "out", jobs=1)
+    assert not s.failures and s.images >= 1
+    return d / "out"
+
+
+def test_nocs_maps_back_onto_the_masks(built):
+    """Every NOCS pixel, taken back to model coordinates and projected with the instance's pose,
+    lands on its own pixel; values lie in [0, 1] and inside the model's box."""
+    chunk = built / "bop" / "train_pbr" / "000000"
+    gt = json.loads((chunk / "scene_gt.json").read_text())
+    cams = json.loads((chunk / "scene_camera.json").read_text())
+    models = json.loads((built / "bop" / "models" / "models_info.json").read_text())
+    checked = 0
+    for im, insts in gt.items():
+        nocs = _exr(chunk / "nocs" / f"{int(im):06d}.exr")
+        assert nocs.min() >= 0 and nocs.max() <= 1
+        Kim = np.asarray(cams[im]["cam_K"]).reshape(3, 3)
+        for gt_id, g in enumerate(insts):
+            mask = np.asarray(Image.open(chunk / "mask_visib" / f"{int(im):06d}_{gt_id:06d}.png")) > 0
+            if mask.sum() < 20:
+                continue
+            info = models[str(g["obj_id"])]
+            ext = np.array([info["size_x"], info["size_y"], info["size_z"]])  # mm
+            diag = np.linalg.norm(ext)
+            model_mm = (nocs[mask].astype(np.float64) - 0.5) * diag
+            assert (np.abs(model_mm) <= ext / 2 + 0.5).all()  # inside the box (0.5 mm)
+            R = np.asarray(g["cam_R_m2c"]).reshape(3, 3)
+            t = np.asarray(g["cam_t_m2c"])
+            cam = model_mm @ R.T + t
+            uv = cam @ Kim.T
+            uv = uv[:, :2] / uv[:, 2:]
+            vv, uu = np.nonzero(mask)
+            err = np.hypot(uv[:, 0] - uu, uv[:, 1] - vv)
+            assert np.percentile(err, 99) < 0.05, err.max()
+            checked += 1
+        outside = ~np.any([np.asarray(Image.open(chunk / "mask_visib" / f"{int(im):06d}_{k:06d}.png")) > 0
+                           for k in range(len(insts))], axis=0)
+        assert np.all(nocs[outside] == 0)
+    assert checked >= 2
+
+
+def test_normals_are_unit_and_in_the_parquet_table(built):
+    import pyarrow.parquet as pq
+
+    chunk = built / "bop" / "train_pbr" / "000000"
+    for f in sorted((chunk / "normals").glob("*.exr")):
+        n = _exr(f)
+        length = np.linalg.norm(n, axis=-1)
+        on = length > 0
+        assert on.sum() > 50 and np.allclose(length[on], 1.0, atol=1e-5)
+        assert (n[on][:, 2] < 0.2).mean() > 0.95  # seen surfaces face the camera (-z)
+    images = pq.read_table(built / "parquet" / "images.parquet").to_pylist()
+    for row in images:
+        assert (built / row["normals"]).is_file() and (built / row["nocs"]).is_file()
