@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -29,3 +31,14 @@ def srgb_to_linear(srgb: np.ndarray) -> np.ndarray:
 
 def linear_to_srgb8(linear: np.ndarray) -> np.ndarray:
     return np.round(linear_to_srgb(linear) * 255.0).astype(np.uint8)
+
+
+def kelvin_rgb(kelvin: float) -> tuple[float, float, float]:
+    """Approximate linear RGB of a black body (normalised so the brightest channel is 1); good
+    enough for light colour jitter between 2700 K (warm bulbs) and 6500 K (daylight)."""
+    t = kelvin / 100.0
+    r = 1.0 if t <= 66 else min(1.0, 1.292936186 * (t - 60) ** -0.1332047592)
+    g = (0.390081578 * math.log(t) - 0.631841443) if t <= 66 else 1.129890861 * (t - 60) ** -0.0755148492
+    b = 1.0 if t >= 66 else (0.0 if t <= 19 else 0.543206789 * math.log(t - 10) - 1.196254089)
+    rgb = np.clip(np.array([r, g, b]), 0.0, 1.0) ** 2.2  # the fit is in sRGB-ish units
+    return tuple(float(c) for c in rgb / rgb.max())

@@ -413,6 +413,55 @@ class Augment(Strict):
     blur_sigma: FloatRange(0.0, 50.0) = Field((0.0, 0.0), description="Gaussian blur sigma range, pixels.")
 
 
+# --------------------------------------------------------------------------- sensor
+
+
+class DepthSensor(Strict):
+    """An RGB-D depth camera's errors, applied to a copy of the exact depth (written to depth_noisy/)."""
+
+    axial_noise: tuple[float, float] = Field(
+        (0.0012, 0.0019), description="Axial noise std = a + b * z^2, metres (z in metres); "
+        "the default is a structured-light sensor's (Kinect-like).")
+    edge_holes: int = Field(1, ge=0, le=20, description="Pixels next to a depth jump (> 5 % of the depth) left empty, "
+                            "as stereo and structured light lose them (shadows, mixed pixels).")
+    dropout: float = Field(0.0, ge=0, le=1, description="Fraction of pixels randomly left empty.")
+    quantisation: float = Field(0.001, ge=0, le=0.1, description="Depth step, metres (0 = none).")
+
+    @field_validator("axial_noise")
+    @classmethod
+    def _non_negative(cls, v):
+        if min(v) < 0 or not all(math.isfinite(x) for x in v):
+            raise ValueError("axial noise coefficients must be finite and >= 0")
+        return v
+
+
+class Sensor(Strict):
+    """A camera's sensor and processing, applied to every rendered image; seed-locked, off by default."""
+
+    shot_noise: float = Field(0.0, ge=0, le=1, description="Photon noise: std = shot_noise * sqrt(linear value), "
+                              "linear units (0.02 ~ a good phone camera in daylight).")
+    read_noise: float = Field(0.0, ge=0, le=0.5, description="Signal-independent Gaussian noise std, linear units.")
+    exposure: FloatRange(-5.0, 5.0) = Field((0.0, 0.0), description="Exposure jitter, stops: the image is scaled by "
+                                            "2^u, u drawn in this range.")
+    white_balance: FloatRange(1500.0, 15000.0) | None = Field(
+        None, description="White-balance error: the camera balances for a light drawn in this range (kelvin) while "
+        "the scene is lit as rendered; channels scale by 6500 K's colour over it.")
+    jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
+                                             "(outputs.image_format jpg); else outputs.jpeg_quality.")
+    depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
+
+    @field_validator("jpeg_quality")
+    @classmethod
+    def _quality(cls, v):
+        if v is not None and v[1] > 100:
+            raise ValueError("JPEG quality is at most 100")
+        return v
+
+    @property
+    def affects_rgb(self) -> bool:
+        return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance)
+
+
 # --------------------------------------------------------------------------- outputs
 
 
@@ -489,6 +538,7 @@ class DatasetSpec(Strict):
     cameras: Cameras = Cameras()
     visibility: Visibility = Visibility()
     quality: Quality = Quality()
+    sensor: Sensor = Field(Sensor(), description="Sensor noise, exposure, white balance, JPEG quality, RGB-D depth errors.")
     backend: SerializeAsAny[BackendOptions] = Field(
         description="Render backend and its options, validated by the installed plugin named by 'name'."
     )

@@ -20,6 +20,7 @@ from . import cameras, seeds
 from .assets import ObjectAsset, resolve_objects
 from .plugins import backend_plugin
 from .colour import check_finite
+from .sensor import jpeg_quality, sensor_depth, sensor_rgb
 from .compiler import Job, arr_id
 from .ir import MeshInstance, RenderScene, as_tuple
 from .records import ArrangementRecord, ImageRecord, PlacedObject, ViewRecord
@@ -355,10 +356,13 @@ class Worker:
             t3 = time.perf_counter()
             wd = self.store.begin()
             rgb_file = f"rgb.{ext}"
+            rng_rgb, rng_jpeg, rng_depth = (np.random.default_rng(ss) for ss in np.random.SeedSequence(
+                seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
+            rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb)
             if ext == "jpg":
-                write_jpg(wd / rgb_file, res.rgb, spec.outputs.jpeg_quality)
+                write_jpg(wd / rgb_file, rgb, jpeg_quality(spec.sensor, spec.outputs.jpeg_quality, rng_jpeg))
             else:
-                write_png(wd / rgb_file, res.rgb)
+                write_png(wd / rgb_file, rgb)
             depth_file, scale = None, spec.outputs.depth_scale
             if spec.outputs.depth:
                 depth16, scale = encode_depth(ann.depth, spec.outputs.depth_scale)
@@ -366,6 +370,10 @@ class Worker:
                 write_png(wd / depth_file, depth16)
             if scale == "auto":
                 scale = 1.0
+            depth_noisy_file = None
+            if spec.outputs.depth and spec.sensor.depth is not None:
+                depth_noisy_file = "depth_noisy.png"
+                write_png(wd / depth_noisy_file, encode_depth(sensor_depth(ann.depth, spec.sensor.depth, rng_depth), scale)[0])
             masks, masks_visib = [], []
             if spec.outputs.masks:
                 for gt, (m, mv) in enumerate(zip(ann.masks, ann.masks_visib)):
@@ -390,7 +398,7 @@ class Worker:
                 seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
                 R_w2c=view.R_w2c, t_w2c=view.t_w2c, depth_scale=float(scale), instances=ann.instances,
                 rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
-                exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, render_seconds=seconds, stats=stats,
+                exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, depth_noisy_file=depth_noisy_file, render_seconds=seconds, stats=stats,
             )
             t5 = time.perf_counter()
             self.store.commit("render", job.key, wd, rec.to_json())

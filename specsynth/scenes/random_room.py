@@ -11,12 +11,12 @@ Units: metres; the interior spans x in [-W/2, W/2], y in [-D/2, D/2], floor at z
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..colour import kelvin_rgb
 from ..library import furniture, textures
 from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
@@ -185,17 +185,6 @@ def _rug(rng, W: float, D: float, felt) -> list[SceneMesh]:
     dye = DYES[int(rng.integers(len(DYES)))]
     mat = SceneMaterial(texture=str(felt.path), base_color=dye, uv_scale=1.0 / felt.tile, roughness=0.95, specular=0.2)
     return [_box("rug", (w, d, 0.01), (float(rng.uniform(-W / 4, W / 4)), float(rng.uniform(-D / 4, D / 4)), 0.005), mat)]
-
-
-def kelvin_rgb(kelvin: float) -> tuple[float, float, float]:
-    """Approximate linear RGB of a black body (normalised so the brightest channel is 1); good
-    enough for light colour jitter between 2700 K (warm bulbs) and 6500 K (daylight)."""
-    t = kelvin / 100.0
-    r = 1.0 if t <= 66 else min(1.0, 1.292936186 * (t - 60) ** -0.1332047592)
-    g = (0.390081578 * math.log(t) - 0.631841443) if t <= 66 else 1.129890861 * (t - 60) ** -0.0755148492
-    b = 1.0 if t >= 66 else (0.0 if t <= 19 else 0.543206789 * math.log(t - 10) - 1.196254089)
-    rgb = np.clip(np.array([r, g, b]), 0.0, 1.0) ** 2.2  # the fit is in sRGB-ish units
-    return tuple(float(c) for c in rgb / rgb.max())
 
 
 def kind_items(kind: str, categories: tuple[str, ...] | None = None) -> list[furniture.FurnitureItem]:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..ir import LightIR, MaterialIR, MeshInstance, RenderScene
 from ..spec import SceneRandomization
-from .random_room import kelvin_rgb
+from ..colour import kelvin_rgb
 
 
 def randomize_scene(scene: RenderScene, opts: SceneRandomization, rng: np.random.Generator,

@@ -49,6 +49,7 @@ MANAGED_DIRS: dict[str, re.Pattern] = {
     "mask_visib": _MASK_NAME,
     "exr": _IMAGE_NAME,
     "normals": _IMAGE_NAME,
+    "depth_noisy": _IMAGE_NAME,
     "nocs": _IMAGE_NAME,
 }
 CHUNK_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json")
@@ -150,6 +151,8 @@ def _chunk_files(rec: ImageRecord, store: Path, im_id: int) -> list[tuple[str, s
     for kind, name in (("normals", rec.normals_file), ("nocs", rec.nocs_file)):
         if name:
             files.append((kind, f"{im_id:06d}.exr", store / name))
+    if rec.depth_noisy_file:
+        files.append(("depth_noisy", f"{im_id:06d}.png", store / rec.depth_noisy_file))
     for gt_id, name in enumerate(rec.mask_files):
         files.append(("mask", f"{im_id:06d}_{gt_id:06d}.png", store / name))
     for gt_id, name in enumerate(rec.mask_visib_files):

@@ -55,6 +55,7 @@ IMAGES_SCHEMA = pa.schema(
         ("exr", pa.string()),
         ("normals", pa.string()),
         ("nocs", pa.string()),
+        ("depth_noisy", pa.string()),
     ]
 )
 
@@ -136,7 +137,8 @@ def write_parquet(
                 return None if not name else os.path.relpath(Path(store) / name, out).replace(os.sep, "/")
 
             paths = {"rgb": rel(rec.rgb_file), "depth": rel(rec.depth_file), "exr": rel(rec.exr_file),
-                     "normals": rel(rec.normals_file), "nocs": rel(rec.nocs_file)}
+                     "normals": rel(rec.normals_file), "nocs": rel(rec.nocs_file),
+                     "depth_noisy": rel(rec.depth_noisy_file)}
         image_rows.append(
             {
                 "chunk": chunk, "im_id": im_id, "index": rec.index, "arr": rec.arr, "cam": rec.cam,

@@ -1,0 +1,125 @@
+"""Sensor noise, exposure, white balance, JPEG quality and RGB-D depth errors: the statistics match
+the model's parameters, every draw is seed-locked, and a real build writes both depths."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from specsynth.build import build
+from specsynth.colour import linear_to_srgb8, srgb_to_linear
+from specsynth.compiler import compile_spec
+from specsynth.sensor import jpeg_quality, sensor_depth, sensor_rgb
+from specsynth.spec import DepthSensor, Sensor
+from specsynth.yamlio import SpecError, load_spec
+
+
+def _linear_of(rgb8: np.ndarray) -> np.ndarray:
+    return srgb_to_linear(rgb8.astype(np.float64) / 255.0)
+
+
+def test_shot_and_read_noise_have_the_model_std():
+    flat = np.full((200, 200, 3), 0.25, np.float32)
+    rgb8 = linear_to_srgb8(flat)
+    for shot, read in ((0.05, 0.0), (0.0, 0.02), (0.04, 0.01)):
+        out = sensor_rgb(flat, rgb8, Sensor(shot_noise=shot, read_noise=read), np.random.default_rng(3))
+        want = np.sqrt(shot ** 2 * 0.25 + read ** 2)
+        got = _linear_of(out).std()
+        assert got == pytest.approx(want, rel=0.08), (shot, read, got, want)  # 8-bit rounding adds a little
+        assert _linear_of(out).mean() == pytest.approx(0.25, abs=0.004)
+
+
+def test_exposure_and_white_balance_scale_the_signal():
+    flat = np.full((16, 16, 3), 0.1, np.float32)
+    rgb8 = linear_to_srgb8(flat)
+    brighter = sensor_rgb(flat, rgb8, Sensor(exposure=(1.0, 1.0)), np.random.default_rng(0))
+    assert _linear_of(brighter).mean() == pytest.approx(0.2, rel=0.02)
+    warm = _linear_of(sensor_rgb(flat, rgb8, Sensor(white_balance=(3000, 3000)), np.random.default_rng(0)))
+    # Balanced for a warm light under neutral light: the image turns blue.
+    assert warm[..., 2].mean() > warm[..., 0].mean() * 1.3
+    off = sensor_rgb(flat, rgb8, Sensor(), np.random.default_rng(0))
+    assert off is rgb8  # nothing asked: the render untouched
+
+
+def test_seed_locked_and_independent_streams():
+    lin = np.random.default_rng(1).random((32, 32, 3)).astype(np.float32)
+    rgb8 = linear_to_srgb8(lin)
+    s = Sensor(shot_noise=0.03, read_noise=0.01, exposure=(-0.5, 0.5))
+    a = sensor_rgb(lin, rgb8, s, np.random.default_rng(7))
+    b = sensor_rgb(lin, rgb8, s, np.random.default_rng(7))
+    c = sensor_rgb(lin, rgb8, s, np.random.default_rng(8))
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    qs = {jpeg_quality(Sensor(jpeg_quality=(60, 95)), 95, np.random.default_rng(k)) for k in range(50)}
+    assert min(qs) >= 60 and max(qs) <= 95 and len(qs) > 10
+
+
+def test_depth_noise_grows_with_distance_and_holes_sit_on_edges():
+    model = DepthSensor(axial_noise=(0.001, 0.002), edge_holes=1, dropout=0.0, quantisation=0.0)
+    for z in (0.5, 2.0, 4.0):
+        d = sensor_depth(np.full((300, 300), z, np.float32), model, np.random.default_rng(2))
+        assert d.std() == pytest.approx(0.001 + 0.002 * z * z, rel=0.05)
+    step = np.full((50, 60), 2.0, np.float32)
+    step[:, 30:] = 1.0
+    holes = sensor_depth(step, model, np.random.default_rng(0)) == 0
+    assert holes[:, 29:31].all() and holes.sum() == 2 * 50  # the two pixels at the jump, no others
+    q = sensor_depth(np.full((40, 40), 1.2345, np.float32), DepthSensor(axial_noise=(0.0, 0.0), edge_holes=0,
+                                                                      quantisation=0.01), np.random.default_rng(0))
+    assert np.allclose(q, 1.23, atol=1e-6)
+    drop = sensor_depth(np.full((200, 200), 1.0, np.float32), DepthSensor(dropout=0.2, edge_holes=0),
+                        np.random.default_rng(0))
+    assert (drop == 0).mean() == pytest.approx(0.2, abs=0.01)
+
+
+SPEC = """\
+name: sensor
+seed: 5
+intrinsics: {width: 96, height: 72, fx: 86.0, fy: 86.0, cx: 47.5, cy: 35.5}
+objects: {builtin: [duck, mug]}
+scenes: [{name: room}]
+arrangements: {count: 1}
+cameras: {per_arrangement: 2, distance: [0.35, 0.6]}
+backend: {name: photo}
+sensor:
+  shot_noise: 0.03
+  read_noise: 0.005
+  exposure: [-0.3, 0.3]
+  jpeg_quality: [70, 90]
+  depth: {axial_noise: [0.001, 0.002], edge_holes: 1, dropout: 0.01}
+"""
+
+
+def test_build_writes_noisy_rgb_and_both_depths(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC)
+    a = build(compile_spec(load_spec(f)), tmp_path / "a", jobs=1)
+    clean = build(compile_spec(load_spec(f, ["sensor={}"])), tmp_path / "clean", jobs=1)
+    assert not a.failures and a.images == clean.images >= 1
+    chunk = "bop/train_pbr/000000"
+    for p in sorted((tmp_path / "a" / chunk / "depth").glob("*.png")):
+        exact = np.asarray(Image.open(p)).astype(np.float64)
+        noisy = np.asarray(Image.open(tmp_path / "a" / chunk / "depth_noisy" / p.name)).astype(np.float64)
+        both = (exact > 0) & (noisy > 0)
+        assert both.sum() > 0.5 * (exact > 0).sum() > 0 and 0 < np.abs(noisy - exact)[both].mean()
+        assert np.array_equal(exact, np.asarray(Image.open(tmp_path / "clean" / chunk / "depth" / p.name)))
+    rgb_a = sorted((tmp_path / "a" / chunk / "rgb").glob("*.jpg"))
+    rgb_c = sorted((tmp_path / "clean" / chunk / "rgb").glob("*.jpg"))
+    assert [p.name for p in rgb_a] == [p.name for p in rgb_c]
+    assert all(p.read_bytes() != q.read_bytes() for p, q in zip(rgb_a, rgb_c))
+    # Labels describe the scene, not the sensor: the same with and without it.
+    gt = "scene_gt_info.json"
+    assert json.loads((tmp_path / "a" / chunk / gt).read_text()) == json.loads((tmp_path / "clean" / chunk / gt).read_text())
+    again = build(compile_spec(load_spec(f)), tmp_path / "b", jobs=1)
+    assert again.images == a.images
+    for p in rgb_a:
+        assert p.read_bytes() == (tmp_path / "b" / chunk / "rgb" / p.name).read_bytes()
+
+
+def test_bad_sensor_values_are_located(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC.replace("jpeg_quality: [70, 90]", "jpeg_quality: [70, 120]"))
+    with pytest.raises(SpecError) as e:
+        load_spec(f)
+    assert [(p.line, p.path) for p in e.value.problems] == [(13, "sensor.jpeg_quality")]
