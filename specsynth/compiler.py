@@ -40,6 +40,7 @@ STAGE_FIELDS = {
         "outputs.exr",
         "outputs.normals",
         "outputs.nocs",
+        "outputs.albedo",
         "sensor",
     ),
 }

@@ -122,6 +122,7 @@ class ImageRecord:
     exr_file: str | None = None
     normals_file: str | None = None  # float32 EXR, camera-space unit normals
     nocs_file: str | None = None  # float32 EXR, NOCS in [0, 1]
+    albedo_file: str | None = None  # 8-bit sRGB PNG, unlit diffuse colour
     depth_noisy_file: str | None = None  # uint16 PNG like depth_file: the RGB-D sensor model's depth
     render_seconds: float = 0.0
     stats: dict[str, Any] = field(default_factory=dict)

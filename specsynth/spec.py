@@ -479,6 +479,8 @@ class Outputs(Strict):
     exr: bool = Field(False, description="Also write the linear beauty pass as OpenEXR.")
     normals: bool = Field(False, description="Also write camera-space unit surface normals (OpenCV axes: x right, "
                           "y down, z forward), float32 OpenEXR RGB = (nx, ny, nz), 0 where empty, into normals/.")
+    albedo: bool = Field(False, description="Also write albedo maps (each surface's diffuse colour: base colour x "
+                         "texture x vertex colours, unlit), 8-bit sRGB PNG, into albedo/.")
     nocs: bool = Field(False, description="Also write NOCS maps (model-frame point / bounding-box diagonal + 0.5, "
                        "in [0, 1]; Wang et al. 2019) of every visible object pixel, float32 OpenEXR RGB, 0 "
                        "elsewhere (mask_visib says whose), into nocs/.")

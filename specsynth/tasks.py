@@ -57,6 +57,8 @@ class Worker:
         self._annotator = None
         self._backend = None
         self._draws_scene = True
+        self._albedo = None
+        self._albedo_key: str | None = None
         self._distractors: dict[str, ObjectAsset] = {}
         self._has_uv: dict[str, bool] = {}
         # What the annotator / backend hold now: (arrangement key, seconds its load took).
@@ -84,6 +86,18 @@ class Worker:
             self._scenes[key] = load_scene(ref, self.ctx.spec_dir, clearance=clearance, variant=variant)
         return self._scenes[key]
 
+    def albedo(self, arrange_key: str, scene: RenderScene):
+        """The albedo renderer with this arrangement loaded (once per arrangement)."""
+        if self._albedo is None:
+            from .albedo import AlbedoRenderer
+
+            self._albedo = AlbedoRenderer(self.spec.intrinsics.width, self.spec.intrinsics.height)
+            self._albedo_key = None
+        if self._albedo_key != arrange_key:
+            self._albedo.load(scene if self._draws_scene else scene.objects_only())
+            self._albedo_key = arrange_key
+        return self._albedo
+
     def annotator(self):
         if self._annotator is None:
             from .annotate import Annotator
@@ -102,10 +116,10 @@ class Worker:
         return self._backend
 
     def close(self) -> None:
-        for obj in (self._backend, self._annotator):
+        for obj in (self._backend, self._annotator, self._albedo):
             if obj is not None:
                 obj.close()
-        self._backend = self._annotator = None
+        self._backend = self._annotator = self._albedo = None
         self._loaded.clear()
         self._blas.restore_original_limits()
 
@@ -387,6 +401,10 @@ class Worker:
                 exr_file = "rgb.exr"
                 write_exr(wd / exr_file, res.linear)
             normals_file, nocs_file = self._geometry_maps(wd, cam, ann)
+            albedo_file = None
+            if spec.outputs.albedo:
+                albedo_file = "albedo.png"
+                write_png(wd / albedo_file, self.albedo(arrange_key, scene).render(cam))
             t4 = time.perf_counter()
             stats = dict(res.stats)
             stats["load_seconds"] = load_seconds
@@ -398,7 +416,8 @@ class Worker:
                 seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
                 R_w2c=view.R_w2c, t_w2c=view.t_w2c, depth_scale=float(scale), instances=ann.instances,
                 rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
-                exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, depth_noisy_file=depth_noisy_file, render_seconds=seconds, stats=stats,
+                exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, depth_noisy_file=depth_noisy_file,
+                albedo_file=albedo_file, render_seconds=seconds, stats=stats,
             )
             t5 = time.perf_counter()
             self.store.commit("render", job.key, wd, rec.to_json())

@@ -49,6 +49,7 @@ MANAGED_DIRS: dict[str, re.Pattern] = {
     "mask_visib": _MASK_NAME,
     "exr": _IMAGE_NAME,
     "normals": _IMAGE_NAME,
+    "albedo": _IMAGE_NAME,
     "depth_noisy": _IMAGE_NAME,
     "nocs": _IMAGE_NAME,
 }
@@ -151,6 +152,8 @@ def _chunk_files(rec: ImageRecord, store: Path, im_id: int) -> list[tuple[str, s
     for kind, name in (("normals", rec.normals_file), ("nocs", rec.nocs_file)):
         if name:
             files.append((kind, f"{im_id:06d}.exr", store / name))
+    if rec.albedo_file:
+        files.append(("albedo", f"{im_id:06d}.png", store / rec.albedo_file))
     if rec.depth_noisy_file:
         files.append(("depth_noisy", f"{im_id:06d}.png", store / rec.depth_noisy_file))
     for gt_id, name in enumerate(rec.mask_files):

@@ -38,6 +38,7 @@ def image_relpaths(split: str, rec: ImageRecord, chunk_size: int) -> dict[str, s
         "normals": f"{base}/normals/{im_id:06d}.exr" if rec.normals_file else None,
         "nocs": f"{base}/nocs/{im_id:06d}.exr" if rec.nocs_file else None,
         "depth_noisy": f"{base}/depth_noisy/{im_id:06d}.png" if rec.depth_noisy_file else None,
+        "albedo": f"{base}/albedo/{im_id:06d}.png" if rec.albedo_file else None,
     }
 
 

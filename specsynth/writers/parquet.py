@@ -56,6 +56,7 @@ IMAGES_SCHEMA = pa.schema(
         ("normals", pa.string()),
         ("nocs", pa.string()),
         ("depth_noisy", pa.string()),
+        ("albedo", pa.string()),
     ]
 )
 
@@ -138,7 +139,7 @@ def write_parquet(
 
             paths = {"rgb": rel(rec.rgb_file), "depth": rel(rec.depth_file), "exr": rel(rec.exr_file),
                      "normals": rel(rec.normals_file), "nocs": rel(rec.nocs_file),
-                     "depth_noisy": rel(rec.depth_noisy_file)}
+                     "depth_noisy": rel(rec.depth_noisy_file), "albedo": rel(rec.albedo_file)}
         image_rows.append(
             {
                 "chunk": chunk, "im_id": im_id, "index": rec.index, "arr": rec.arr, "cam": rec.cam,
