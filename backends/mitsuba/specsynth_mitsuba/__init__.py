@@ -19,8 +19,8 @@ PLUGIN = BackendPlugin(
     ),
     distributions=("mitsuba", "drjit"),
     # 2: exact K sensor for fy != fx, stratified sampler, albedo calibrated to Cycles, sky units,
-    # see-through area lights. 3: calibrated quality levels.
-    revision=3,
+    # see-through area lights. 3: calibrated quality levels. 4: denoiser guides from their own pass.
+    revision=4,
     cost=(0.11, 0.122),
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
     bench_variants=(("denoise", {"denoise": True}), ("independent", {"sampler": "independent"}),
