@@ -115,7 +115,7 @@ class PhotoBackend:
             pr_scene.add(mesh, pose=pose, name=inst.name)
             lo, hi = mesh.bounds
             box = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-            corners.append((box @ pose.T)[:, :3])
+            corners.append(np.einsum("ij,kj->ik", box, pose)[:, :3])  # box @ pose.T without BLAS
         self._scene = pr_scene
         self._scene_ir = scene
         self._objects = objects

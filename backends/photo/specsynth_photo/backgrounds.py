@@ -166,7 +166,9 @@ def _pano_view(pano: np.ndarray, width: int, height: int, rng: np.random.Generat
     R_roll = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
     R_pitch = np.array([[1, 0, 0], [0, cp, sp], [0, -sp, cp]])
     R_yaw = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    R = (R_yaw @ R_pitch @ R_roll).astype(np.float32)
+    # 3x3 products by einsum (numpy's own loops): BLAS may round a last bit differently by the
+    # operands' alignment, and that bit can flip a background pixel between two builds.
+    R = np.einsum("ij,jk->ik", np.einsum("ij,jk->ik", R_yaw, R_pitch), R_roll).astype(np.float32)
     # Element-wise, not ``d @ R.T``: BLAS may pick kernels by memory alignment and thread count,
     # and a last-bit difference here can flip an 8-bit pixel; these bytes must depend on the seed only.
     d = np.stack([d[..., 0] * R[i, 0] + d[..., 1] * R[i, 1] + d[..., 2] * R[i, 2] for i in range(3)], axis=-1)
