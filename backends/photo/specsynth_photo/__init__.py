@@ -16,7 +16,7 @@ PLUGIN = BackendPlugin(
         quality="rasterised: no samples; the preset is ignored",
     ),
     distributions=("pyrender", "scikit-image"),
-    revision=2,  # 2: background and augmentation maths without BLAS
+    revision=3,  # 2: background and augmentation maths without BLAS; 3: pano trigonometry in float64
     cost=(0.05, 0.0),
     install_hint="pip install -e backends/photo  and apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri",
 )

@@ -32,7 +32,7 @@ from OpenGL.error import GLError  # noqa: E402  (after .gl, see above)
 __all__ = ["PhotoBackend", "BackgroundError"]
 
 # Bump when a change alters pixels for the same inputs (it is part of every render job's key).
-ALGORITHM_VERSION = 2  # 2: background and augmentation maths without BLAS (bytes from the seed only)
+ALGORITHM_VERSION = 3  # 2: background and augmentation maths without BLAS; 3: pano trigonometry in float64
 
 # Random light ranges. pyrender shades a white Lambertian surface facing a light of intensity E as
 # about 0.25 * E, so E in [1.2, 4] spans dim to bright without washing out.
