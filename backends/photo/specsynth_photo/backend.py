@@ -167,6 +167,7 @@ class PhotoBackend:
             "seconds": t_end - t0,
             "seconds_background": t_bg - t0,
             "seconds_raster": t_gl - t_bg,
+            "phases": {"background": t_bg - t0, "raster": t_gl - t_bg, "composite": t_end - t_gl},
         }
         return RenderResult(rgb=np.ascontiguousarray(rgb), linear=None, stats=stats)
 
