@@ -42,7 +42,7 @@ bench: install
 	$(BIN)/specsynth bench specs/demo.yaml --out bench-out/demo --views 2 --scale 0.25 --ref-factor 4
 
 schema: install
-	$(BIN)/specsynth schema --backends cycles,mitsuba,photo
+	$(BIN)/specsynth schema
 
 clean:
 	rm -rf out bench-out .pytest_cache
