@@ -9,8 +9,6 @@ meshes and textures are cached by content across arrangements.
 from __future__ import annotations
 
 import numpy as np
-from PIL import Image
-
 from . import glutil
 from .colour import linear_to_srgb, srgb_to_linear
 from .conventions import cam_to_world, opencv_to_opengl_c2w
@@ -34,6 +32,11 @@ class AlbedoRenderer:
         self._scene = self._pr.Scene(bg_color=(0.0, 0.0, 0.0, 1.0), ambient_light=(0.0, 0.0, 0.0))
         for inst in scene.meshes:
             self._scene.add(self._mesh(inst), pose=inst.matrix, name=inst.name)
+        # Keep only what this arrangement draws: with a new room per arrangement the caches would
+        # otherwise grow with every one (pyrender frees the GL side of meshes left out of a scene).
+        live = {_mesh_key(inst) for inst in scene.meshes}
+        self._meshes = {k: v for k, v in self._meshes.items() if k in live}
+        self._textures = {k: v for k, v in self._textures.items() if any(k == m.material.texture for m in scene.meshes)}
 
     def render(self, camera: CameraIR) -> np.ndarray:
         """HxWx3 uint8 sRGB diffuse colour seen by ``camera`` (black where nothing is)."""
@@ -52,10 +55,9 @@ class AlbedoRenderer:
         self._textures.clear()
 
     def _mesh(self, inst: MeshInstance):
-        m = inst.material
-        key = (inst.mesh_key, m.base_color, m.texture, m.use_vertex_colors, m.uv_transform)
+        key = _mesh_key(inst)
         if key not in self._meshes:
-            self._meshes[key] = self._build(inst.mesh_path, m)
+            self._meshes[key] = self._build(inst.mesh_path, inst.material)
         return self._meshes[key]
 
     def _build(self, path: str, m: MaterialIR):
@@ -79,9 +81,10 @@ class AlbedoRenderer:
 
     def _texture(self, path: str):
         if path not in self._textures:
-            with Image.open(path) as im:
-                img = np.asarray(im.convert("RGB"), dtype=np.uint8)
-            sampler = self._pr.Sampler(magFilter=self._pr.constants.GLTF.LINEAR,
-                                       minFilter=self._pr.constants.GLTF.LINEAR_MIPMAP_LINEAR)
-            self._textures[path] = self._pr.Texture(source=img, source_channels="RGB", sampler=sampler)
+            self._textures[path] = glutil.texture_from_file(path)
         return self._textures[path]
+
+
+def _mesh_key(inst: MeshInstance) -> tuple:
+    m = inst.material
+    return (inst.mesh_key, m.base_color, m.texture, m.use_vertex_colors, m.uv_transform)

@@ -20,7 +20,7 @@ from .plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_ba
 from .build import build
 from .compiler import JobGraph
 from .records import ArrangementRecord, ViewRecord
-from .spec import QualityPreset
+from .spec import PAPER_PRESETS, QualityPreset
 from .store import Store, write_json
 
 
@@ -62,20 +62,13 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
         for suffix, options in plugin.bench_variants:
             out.append(Setting(plugin.name, f"{level}+{suffix}", level, dict(options)))
         if ladder and plugin.capabilities.denoise:
-            own = preset_samples(level)
+            own = PAPER_PRESETS[level].samples
             n = 1
             while n < own:
                 out.append(Setting(plugin.name, f"{level}+denoise@{n}", level, {"denoise": True, "samples": n}))
                 n *= 2
     out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor}, reference=True))
     return out
-
-
-def preset_samples(level: str) -> int:
-    from .spec import PAPER_PRESETS
-
-    q = PAPER_PRESETS[level]
-    return max(q.aa, q.diffuse_rays, q.specular_rays)
 
 
 def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:

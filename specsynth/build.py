@@ -122,7 +122,7 @@ def _samples(graph: JobGraph) -> int:
         options = backend_plugin(options.name).options_for(options, graph.spec.quality)
     except PluginNotFound:
         pass
-    return options.samples or max(q.aa, q.diffuse_rays, q.specular_rays)
+    return options.samples or q.samples
 
 
 def _render_estimate(graph: JobGraph) -> float:

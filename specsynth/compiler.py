@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Iterator
 
 from . import keys, seeds
-from .plugins import backend_plugin
+from .plugins import backend_plugin, dist_version
 from .assets import AssetError, builtin_objects, check_texture, expand_path, file_digest, object_fingerprints
 from .scenes import declares_stages, scene_fingerprint, stage_table
 from .spec import DatasetSpec
@@ -103,13 +102,6 @@ class Job:
     def seed(self) -> int:
         # Derived on demand: planning a million jobs never needs their seeds.
         return seeds.job_seed(self.root_seed, self.id)
-
-
-def _dist_version(name: str) -> str:
-    try:
-        return metadata.version(name)
-    except metadata.PackageNotFoundError:
-        return "not-installed"
 
 
 def backend_fingerprint(name: str) -> str:
@@ -251,7 +243,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         inputs = {f"spec:{f}": keys.digest(_field(data, f)) for f in fields}
         stage_inputs[stage] = inputs
     stage_inputs["arrange"].update(asset_hashes)
-    stage_inputs["view"]["annotator"] = f"pyrender {_dist_version('pyrender')}"
+    stage_inputs["view"]["annotator"] = f"pyrender {dist_version('pyrender')}"
     backend = backend_fingerprint(spec.backend.name)
     stage_inputs["render"]["backend"] = backend
     for option, folder in spec.backend.input_folders().items():

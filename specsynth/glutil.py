@@ -27,6 +27,17 @@ class KCamera(pyrender.Camera):
         return opengl_projection(self.K, width, height, self.znear, self.zfar)
 
 
+def texture_from_file(path: str) -> pyrender.Texture:
+    """An sRGB image file as a mip-mapped pyrender texture (the shader linearises it, as glTF)."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        img = np.asarray(im.convert("RGB"), dtype=np.uint8)
+    sampler = pyrender.Sampler(magFilter=pyrender.constants.GLTF.LINEAR,
+                               minFilter=pyrender.constants.GLTF.LINEAR_MIPMAP_LINEAR)
+    return pyrender.Texture(source=img, source_channels="RGB", sampler=sampler)
+
+
 def release_renderer(renderer: pyrender.OffscreenRenderer) -> None:
     """Free a renderer's GL objects and context *without* ``eglTerminate``.
 

@@ -73,14 +73,15 @@ class BackendPlugin:
     def fingerprint(self) -> str:
         """The plugin's name and the versions of what it renders with; part of every render key."""
         dist = _plugin_distribution(BACKEND_GROUP, self.name)
-        parts = [f"{d} {_dist_version(d)}" for d in (dist, *self.distributions) if d]
-        parts.append(f"specsynth {_dist_version('specsynth')}")
+        parts = [f"{d} {dist_version(d)}" for d in (dist, *self.distributions) if d]
+        parts.append(f"specsynth {dist_version('specsynth')}")
         if self.revision > 1:
             parts.append(f"backend rev {self.revision}")
         return f"{self.name} ({'; '.join(parts)})"
 
 
-def _dist_version(name: str) -> str:
+def dist_version(name: str) -> str:
+    """An installed distribution's version, read from its metadata (nothing is imported)."""
     try:
         return metadata.version(name)
     except metadata.PackageNotFoundError:

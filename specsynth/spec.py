@@ -312,6 +312,12 @@ class QualityPreset(Strict):
     specular_depth: int = Field(ge=0, le=64)
     max_depth: int = Field(ge=1, le=128)
 
+    @property
+    def samples(self) -> int:
+        """Samples per pixel of a path tracer: max(AA, diffuse rays, specular rays), which keeps
+        the paper's cost ratio between levels (README, "Backends and quality")."""
+        return max(self.aa, self.diffuse_rays, self.specular_rays)
+
 
 class QualityOverride(Strict):
     aa: int | None = Field(None, ge=1, le=4096)

@@ -346,6 +346,10 @@ class CyclesBackend:
         if self._bpy is not None:
             self._clear()
             self._scene_ir = None
+            # bpy's handler lists are process-wide: a closed backend must not keep timing renders.
+            handlers = self._bpy.app.handlers.render_stats
+            if self._on_stats in handlers:
+                handlers.remove(self._on_stats)
         shutil.rmtree(self._tmp, ignore_errors=True)
 
     def __del__(self) -> None:  # the temp dir must not outlive a crashed worker loop

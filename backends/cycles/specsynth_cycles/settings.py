@@ -82,7 +82,7 @@ def preset_samples(q: QualityPreset) -> int:
     max() gives 1 / 36 / 225 spp, measured 1 : ~10 : ~56 here: the paper's cost ratio and at least as
     many camera rays and first-bounce rays per pixel as Arnold spends per camera ray.
     """
-    return max(q.aa, q.diffuse_rays, q.specular_rays)
+    return q.samples
 
 
 @dataclass(frozen=True)

@@ -186,12 +186,10 @@ class MitsubaBackend:
         dr.sync_thread()
         return np.array(img, dtype=np.float32)
 
-    def _integrator(self, max_depth: int, rr_depth: int, aovs: bool = False):
-        key = (max_depth, rr_depth, aovs)
+    def _integrator(self, max_depth: int, rr_depth: int):
+        key = (max_depth, rr_depth)
         if key not in self._integrators:
             path = {"type": "path", "max_depth": max_depth, "rr_depth": rr_depth, "hide_emitters": False}
-            if aovs:  # the denoiser's guides, from the same camera rays: channels 3-5 and 6-8
-                path = {"type": "aov", "aovs": "albedo:albedo,nn:sh_normal", "integrator": path}
             self._integrators[key] = self._mi.load_dict(path)
         return self._integrators[key]
 

@@ -57,7 +57,7 @@ def integrator_settings(preset: QualityPreset, sampler: str = "independent", sam
     # A unidirectional path tracer takes one diffuse and one specular continuation per camera
     # sample, so matching the preset's per-pixel ray budget needs max(camera, diffuse, specular)
     # samples: 1 / 36 / 225 for low / medium / high.
-    requested = samples if samples is not None else max(preset.aa, preset.diffuse_rays, preset.specular_rays)
+    requested = samples if samples is not None else preset.samples
     depth = mitsuba_max_depth(preset)
     # Russian roulette never starts inside the preset's depth: the presets are short, and RR there
     # only adds noise (it is unbiased, so the mean is unchanged either way).

@@ -19,11 +19,10 @@ from OpenGL.GL import (  # noqa: E402
     glBindRenderbuffer,
     glRenderbufferStorageMultisample,
 )
-from PIL import Image  # noqa: E402
 from pyrender.renderer import Renderer  # noqa: E402
 
 from specsynth.colour import srgb_to_linear  # noqa: E402
-from specsynth.glutil import KCamera, discard_renderer, release_renderer  # noqa: E402,F401  (re-exported)
+from specsynth.glutil import KCamera, discard_renderer, release_renderer, texture_from_file  # noqa: E402,F401  (re-exported)
 from specsynth.ir import MaterialIR  # noqa: E402
 from specsynth.meshio import MeshData, read_mesh  # noqa: E402
 
@@ -74,15 +73,6 @@ def vertex_normals(mesh: MeshData) -> np.ndarray:
     return (n / np.where(length > 0, length, 1.0)).astype(np.float32)
 
 
-def _texture(path: str) -> pyrender.Texture:
-    with Image.open(path) as im:
-        img = np.asarray(im.convert("RGB"), dtype=np.uint8)
-    # The shader converts the texture from sRGB to linear itself (glTF semantics), as the IR wants.
-    sampler = pyrender.Sampler(magFilter=pyrender.constants.GLTF.LINEAR,
-                               minFilter=pyrender.constants.GLTF.LINEAR_MIPMAP_LINEAR)
-    return pyrender.Texture(source=img, source_channels="RGB", sampler=sampler)
-
-
 def build_mesh(path: str, material: MaterialIR, textures: dict[str, pyrender.Texture]) -> pyrender.Mesh:
     """A pyrender mesh of a normalised PLY with a metallic-roughness version of ``material``."""
     mesh = read_mesh(path).validate(path)
@@ -92,7 +82,7 @@ def build_mesh(path: str, material: MaterialIR, textures: dict[str, pyrender.Tex
     if material.texture is not None and mesh.uv is not None:
         tex = textures.get(material.texture)
         if tex is None:
-            tex = textures[material.texture] = _texture(material.texture)
+            tex = textures[material.texture] = texture_from_file(material.texture)
         texcoord = mesh.uv
     color_0 = None
     if material.use_vertex_colors and mesh.colors is not None:
