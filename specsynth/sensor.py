@@ -1,6 +1,7 @@
 """The camera's sensor and processing, applied after rendering: the same in every backend.
 
-RGB: exposure and white-balance errors scale the linear radiance, then shot noise (std
+RGB: auto white balance divides out the colour of the light in view (the render over the view's
+albedo: what a camera's AWB estimates, here known exactly), then exposure and white-balance errors scale the linear radiance, then shot noise (std
 proportional to the square root of the signal) and read noise (constant std) are added, all in
 linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
 light sensor's errors on a copy of the exact depth (axial noise growing with z², holes at depth
@@ -17,16 +18,45 @@ from .colour import kelvin_rgb
 from .spec import DepthSensor, Sensor
 
 
-def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng: np.random.Generator) -> np.ndarray:
-    """The sensor's 8-bit sRGB image of a render (its linear radiance, or its 8-bit image decoded)."""
+REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
+AWB_GAINS = (0.2, 5.0)  # a camera's AWB range: about 2000 K to 12000 K under one light
+
+
+def illuminant(linear: np.ndarray, albedo: np.ndarray, clipped: float = np.inf) -> np.ndarray | None:
+    """The colour of the light in view (linear RGB): the render's sum over the albedo's sum per
+    channel, over pixels with a surface of known, not-black colour whose render is not clipped.
+    Light bounced off orange wood counts, as it does for a camera. None when too little is seen."""
+    ok = (albedo.min(axis=-1) > 0.02) & (linear.max(axis=-1) < clipped)
+    if ok.sum() < 16:
+        return None
+    return linear[ok].sum(axis=0) / albedo[ok].sum(axis=0)
+
+
+def balance_gains(light: np.ndarray | None) -> np.ndarray:
+    """Per-channel gains that make ``light`` neutral at its own luminance (brightness kept)."""
+    if light is None or not np.all(np.isfinite(light)) or light.max() <= 0:
+        return np.ones(3)
+    return np.clip(float(light @ REC709_LUMA) / np.maximum(light, 1e-12), *AWB_GAINS)
+
+
+def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng: np.random.Generator,
+               albedo8: np.ndarray | None = None) -> np.ndarray:
+    """The sensor's 8-bit sRGB image of a render (its linear radiance, or its 8-bit image decoded);
+    ``albedo8`` (the view's sRGB albedo map) is needed for auto white balance."""
     # Draw every number whatever is switched on, so enabling one effect never shifts another's noise.
     stops = float(rng.uniform(*sensor.exposure)) if sensor.exposure != (0.0, 0.0) else 0.0
     kelvin = float(rng.uniform(*sensor.white_balance)) if sensor.white_balance else 6500.0
     if not sensor.affects_rgb:
         return rgb8
     x = (np.asarray(linear, np.float64) if linear is not None else srgb_to_linear(rgb8.astype(np.float64) / 255.0))
+    x = np.maximum(x, 0.0)
+    if sensor.auto_white_balance:
+        if albedo8 is None:
+            raise ValueError("auto white balance needs the view's albedo map")
+        albedo = srgb_to_linear(np.asarray(albedo8, np.float64) / 255.0)
+        x = x * balance_gains(illuminant(x, albedo, clipped=np.inf if linear is not None else 0.99))
     gains = np.asarray(kelvin_rgb(6500.0)) / np.asarray(kelvin_rgb(kelvin))
-    x = np.maximum(x, 0.0) * (2.0 ** stops) * (gains / gains.mean())
+    x = x * (2.0 ** stops) * (gains / gains.mean())
     noise_std = np.sqrt(sensor.shot_noise ** 2 * x + sensor.read_noise ** 2)
     x = x + noise_std * rng.standard_normal(x.shape)
     return linear_to_srgb8(np.clip(x, 0.0, None).astype(np.float32))

@@ -177,6 +177,15 @@ class RoomOptions(Strict):
                                           "(1 = 6-10 pieces against the walls and 1-2 in the middle).")
     categories: list[str] | None = Field(None, min_length=1, description="Furniture catalogue categories "
                                          "(see `specsynth furniture`) instead of the kinds' own.")
+    clutter: IntRange(0) = Field((1, 3), description="Small catalogue items (books, cups, plants, toys) standing "
+                                 "on each furniture top, [min, max]; stages are found around them.")
+
+    @field_validator("clutter")
+    @classmethod
+    def _clutter(cls, v):
+        if v[1] > 10:
+            raise ValueError("at most 10 clutter items per furniture top")
+        return v
 
 
 class SceneRandomization(Strict):
@@ -452,6 +461,10 @@ class Sensor(Strict):
     white_balance: FloatRange(1500.0, 15000.0) | None = Field(
         None, description="White-balance error: the camera balances for a light drawn in this range (kelvin) while "
         "the scene is lit as rendered; channels scale by 6500 K's colour over it.")
+    auto_white_balance: bool = Field(
+        False, description="Balance each image for the light in view, as a camera's auto white balance does: the "
+        "illuminant is the render over the view's albedo (diffuse colour), so a grey surface comes out grey "
+        "under a 2700 K lamp and wood stays wood (gains limited to [0.2, 5]).")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")
     depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
@@ -465,7 +478,8 @@ class Sensor(Strict):
 
     @property
     def affects_rgb(self) -> bool:
-        return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance)
+        return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance
+                    or self.auto_white_balance)
 
 
 # --------------------------------------------------------------------------- outputs

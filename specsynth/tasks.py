@@ -372,7 +372,10 @@ class Worker:
             rgb_file = f"rgb.{ext}"
             rng_rgb, rng_jpeg, rng_depth = (np.random.default_rng(ss) for ss in np.random.SeedSequence(
                 seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
-            rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb)
+            albedo8 = None
+            if spec.outputs.albedo or spec.sensor.auto_white_balance:
+                albedo8 = self.albedo(arrange_key, scene).render(cam)
+            rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb, albedo8)
             if ext == "jpg":
                 write_jpg(wd / rgb_file, rgb, jpeg_quality(spec.sensor, spec.outputs.jpeg_quality, rng_jpeg))
             else:
@@ -404,7 +407,7 @@ class Worker:
             albedo_file = None
             if spec.outputs.albedo:
                 albedo_file = "albedo.png"
-                write_png(wd / albedo_file, self.albedo(arrange_key, scene).render(cam))
+                write_png(wd / albedo_file, albedo8)
             t4 = time.perf_counter()
             stats = dict(res.stats)
             stats["load_seconds"] = load_seconds

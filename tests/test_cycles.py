@@ -201,6 +201,25 @@ def _lit_scene(meshes, glossy: bool = False) -> RenderScene:
     )
 
 
+def test_triangles_naming_a_vertex_twice_are_dropped_not_fatal(backend, meshes, tmp_path):
+    """Library furniture has zero-area triangles like (a, b, b); with custom normals set they used
+    to crash Blender (a segfault in a build). The sphere with such triangles added renders as before."""
+    m = uv_sphere()
+    bad = np.array([[0, 5, 5], [7, 7, 9], [3, 4, 3]])
+    write_mesh(str(tmp_path / "bad.ply"), MeshData(vertices=m.vertices, faces=np.concatenate([m.faces, bad]),
+                                                   normals=m.normals, uv=m.uv))
+    paths = {**meshes, "bad": str(tmp_path / "bad.ply")}
+    cam = camera()
+    images = []
+    for name in ("sphere", "bad"):
+        scene = _lit_scene(paths)
+        scene = RenderScene(meshes=(scene.meshes[0], inst(paths, name, t=(0, 0, 0.5), s=0.5, k=0, key=name)),
+                            lights=scene.lights, world=scene.world)
+        backend.load(scene)
+        images.append(backend.render(cam, LOW, seed=1).linear)
+    assert np.abs(images[0] - images[1]).max() < 1e-6
+
+
 @pytest.mark.slow
 def test_same_job_is_byte_identical(backend, meshes):
     backend.load(_lit_scene(meshes))

@@ -160,13 +160,37 @@ def test_random_room_parameters_from_the_spec(cache, tmp_path):
     floor = next(m for m in desc.meshes if m.name == "floor")
     v = read_mesh(floor.mesh_path).vertices
     assert np.ptp(v[:, 0]) == pytest.approx(4.0, abs=1e-4) and np.ptp(v[:, 1]) == pytest.approx(3.5, abs=1e-4)
-    from specsynth.scenes.random_room import kind_items
+    from specsynth.scenes.random_room import clutter_items, kind_items
 
     ids = {i.id for i in kind_items("workshop")}
-    used = [c["asset"].removeprefix("furniture:") for c in desc.credits if c["asset"].startswith("furniture:")]
-    assert used and set(used) <= ids
+    used = {c["asset"].removeprefix("furniture:") for c in desc.credits if c["asset"].startswith("furniture:")}
+    clutter = {i.id for i in clutter_items()}
+    assert used & ids and used - ids <= clutter  # workshop furniture, and small items on its tops
     with pytest.raises(ValueError, match="for the scene 'random_room' only"):
         SceneRef(name="room", room={"kinds": ["shop"]})
+
+
+def test_clutter_stands_on_open_tops_and_leaves_stages(cache):
+    """Small catalogue items stand on tables, counters and cabinets (at the top's height, inside its
+    footprint, apart from each other) and are credited; the rooms keep stages above the floor."""
+    from specsynth.library import furniture
+    from specsynth.scenes.random_room import clutter_items, open_top, random_room
+
+    small = {i.id for i in clutter_items()}
+    seen = 0
+    for seed in range(6):
+        sf, credits = random_room(seed, cache)
+        pieces = [(furniture.find(m.source.furniture), m.transform.translation) for m in sf.meshes
+                  if m.name.startswith("furniture_")]
+        for m in (m for m in sf.meshes if m.name.startswith("clutter_")):
+            seen += 1
+            assert m.source.furniture in small and m.collide
+            assert f"furniture:{m.source.furniture}" in {c["asset"] for c in credits}
+            x, y, z = m.transform.translation
+            under = [(i, t) for i, t in pieces if open_top(i) is not None and abs(open_top(i) + 0.001 - z) < 1e-9
+                     and abs(x - t[0]) < max(i.size[:2]) / 2 and abs(y - t[1]) < max(i.size[:2]) / 2]
+            assert under, (seed, m.name)
+    assert seen >= 6
 
 
 def test_random_room_without_textures_names_the_fix(tmp_path, monkeypatch):

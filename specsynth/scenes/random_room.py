@@ -11,6 +11,7 @@ Units: metres; the interior spans x in [-W/2, W/2], y in [-D/2, D/2], floor at z
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,8 +22,8 @@ from ..library import furniture, textures
 from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
 # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed. 3: room parameters,
-# workshop and shop kinds, a lamp per room, fixed furnished rooms.
-GENERATOR_VERSION = 3
+# workshop and shop kinds, a lamp per room, fixed furnished rooms. 4: clutter on furniture tops.
+GENERATOR_VERSION = 4
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -47,6 +48,7 @@ class RoomParams:
     wall_pieces: tuple[int, int] = (6, 10)
     middle_pieces: tuple[int, int] = (1, 2)
     categories: tuple[str, ...] | None = None  # catalogue categories instead of the kind's
+    clutter: tuple[int, int] = (1, 3)  # small catalogue items on each furniture top
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
@@ -122,6 +124,66 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int) -> list[Placed
     return placed
 
 
+CLUTTER_MAX = 0.45  # metres: catalogue items up to this size are clutter (books, cups, plants, toys)
+CLUTTER_CATEGORIES = ("Kitchen", "Office", "Living room", "Bedroom", "Miscellaneous")
+
+
+def clutter_items() -> list[furniture.FurnitureItem]:
+    """Small free-standing catalogue items: what stands on real tables, shelves and counters."""
+    return [i for i in furniture.catalogue() if i.category in CLUTTER_CATEGORIES and max(i.size) <= CLUTTER_MAX
+            and i.elevation == 0 and not i.light and not i.door_or_window and min(i.size[0], i.size[1]) > 0.03]
+
+
+TOP_WORDS = re.compile(r"table|desk|cabinet|chest|dresser|counter|sideboard|drawer|commode|buffet|worktop|"
+                       r"sink|dishwasher|washing machine|bench|crate|trunk", re.I)
+
+
+def open_top(item: furniture.FurnitureItem) -> float | None:
+    """Height of the open top things can stand on (tables, counters, cabinets), else None: a chair's
+    seat or a shelf board has parts above it, and a model without a catalogue surface is only
+    trusted to have a flat top when its name says so."""
+    top = item.drop_on_top
+    if top is None or top < 0:
+        top = item.size[2] if TOP_WORDS.search(item.name) and not re.search(r"chair", item.name, re.I) else None
+    if top is None or top < 0.3 or item.size[2] - top > 0.08:
+        return None
+    return float(top)
+
+
+def clutter(rng, placed: list[Placed], items: list[furniture.FurnitureItem], per_top: tuple[int, int]) -> list[SceneMesh]:
+    """Small items standing on the tops of the placed furniture, none overlapping, each inside one
+    half of its top (shrunk by a margin); stages are then found on what stays free around them."""
+    out: list[SceneMesh] = []
+    for p in placed:
+        top = open_top(p.item)
+        if top is None or not items or per_top[1] == 0:
+            continue
+        x0, y0, x1, y1 = p.footprint
+        # Clutter keeps to one half of the top (split along its long side): the other half stays a stage.
+        if x1 - x0 >= y1 - y0:
+            x0, x1 = (x0, (x0 + x1) / 2) if rng.random() < 0.5 else ((x0 + x1) / 2, x1)
+        else:
+            y0, y1 = (y0, (y0 + y1) / 2) if rng.random() < 0.5 else ((y0 + y1) / 2, y1)
+        taken: list[tuple[float, float, float, float]] = []
+        fitting = [i for i in items if float(np.hypot(i.size[0], i.size[1])) + 0.1 < min(x1 - x0, y1 - y0)]
+        for _ in range(int(rng.integers(per_top[0], per_top[1] + 1)) if fitting else 0):
+            for _ in range(10):  # a few tries for a free spot
+                item = fitting[int(rng.integers(len(fitting)))]
+                r = 0.5 * float(np.hypot(item.size[0], item.size[1]))  # any yaw fits in this circle
+                x = float(rng.uniform(x0 + r + 0.05, x1 - r - 0.05))
+                y = float(rng.uniform(y0 + r + 0.05, y1 - r - 0.05))
+                box = (x - r, y - r, x + r, y + r)
+                if not any(box[0] < q[2] and q[0] < box[2] and box[1] < q[3] and q[1] < box[3] for q in taken):
+                    break
+            else:
+                continue
+            taken.append(box)
+            yaw = float(rng.uniform(0, 360))
+            out.append(SceneMesh(name=f"clutter_{len(out):02d}", source={"furniture": item.id},
+                                 transform=Transform(translation=(x, y, float(top) + 0.001), rotation=(0.0, 0.0, yaw))))
+    return out
+
+
 def _tex(rng, options: list, what: str) -> textures.SurfaceTexture:
     if not options:
         raise textures.TextureLibraryError(f"random_room: no {what} textures installed")
@@ -188,8 +250,6 @@ def _rug(rng, W: float, D: float, felt) -> list[SceneMesh]:
 
 
 def kind_items(kind: str, categories: tuple[str, ...] | None = None) -> list[furniture.FurnitureItem]:
-    import re
-
     cats, names = ROOM_KINDS[kind]
     if categories is not None:
         cats, names = categories, None
@@ -197,11 +257,16 @@ def kind_items(kind: str, categories: tuple[str, ...] | None = None) -> list[fur
     return [i for i in furniture.catalogue() if i.category in cats and (pat is None or pat.search(i.name))]
 
 
-def _lamp(rng, placed: list[Placed], W: float, D: float) -> LightDef:
-    """A warm lamp: above a piece of furniture (as a table or floor lamp would be), else a corner."""
+def _lamp(rng, placed: list[Placed], W: float, D: float, small: list[SceneMesh]) -> LightDef:
+    """A warm lamp: above a piece of furniture and what stands on it (as a table or floor lamp
+    would be; a light inside a cup casts room-sized shadows), else a corner."""
     if placed:
         p = placed[int(rng.integers(len(placed)))]
-        x, y, z = p.x, p.y, p.item.size[2] + float(rng.uniform(0.3, 0.6))
+        x0, y0, x1, y1 = p.footprint
+        tallest = max([p.item.size[2]] + [m.transform.translation[2] + furniture.find(m.source.furniture).size[2]
+                                          for m in small if x0 <= m.transform.translation[0] <= x1
+                                          and y0 <= m.transform.translation[1] <= y1])
+        x, y, z = p.x, p.y, tallest + float(rng.uniform(0.3, 0.6))
     else:
         x, y, z = W / 2 - 0.4, D / 2 - 0.4, 1.5
     return LightDef(kind="point", power=float(rng.uniform(10, 35)), color=kelvin_rgb(float(rng.uniform(2400, 3200))),
@@ -245,6 +310,8 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
         dressed_credits += used
         meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id}, materials=overrides,
                                 transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
+    small = clutter(rng, placed, clutter_items(), params.clutter)
+    meshes += small
     ceiling_colour = kelvin_rgb(float(rng.uniform(3000, 6500)))
     lights = [
         LightDef(kind="area", power=float(rng.uniform(60, 180)), size=(min(1.2, W / 3), min(1.2, D / 3)),
@@ -252,13 +319,14 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
         LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
                               float(rng.uniform(1.6, H - 0.4)))),
-        _lamp(rng, placed, W, D),
+        _lamp(rng, placed, W, D, small),
     ]
     world = World(envmap=OUTDOOR_HDRIS[int(rng.integers(len(OUTDOOR_HDRIS)))], strength=float(rng.uniform(0.4, 0.9)),
                   rotation=float(rng.uniform(0, 360)))
     sf = SceneFile(name=f"random_room_{kind}", meshes=meshes, lights=lights, world=world,
                    description=f"random_room seed {seed}, kind {kind}, {len(placed)} pieces of furniture")
     credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed] + dressed_credits
+    credits += [furniture.find(m.source.furniture).credit for m in small]
     if any(m.name == "rug" for m in meshes):
         credits.append(felt.credit)
     return sf, credits
@@ -268,7 +336,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
 # pieces of furniture with stages on them), furnished more densely than the random ones. They are
 # the paper's fixed artist-made scenes in spirit; random_room draws a new one per arrangement.
 FIXED_PARAMS = RoomParams(width=(5.0, 6.0), depth=(4.2, 5.0), height=(2.6, 2.9), wall_pieces=(11, 13),
-                          middle_pieces=(2, 2))
+                          middle_pieces=(2, 2), clutter=(1, 3))
 FIXED_ROOMS: dict[str, tuple[str, int]] = {
     "living_room": ("living_room", 101),
     "kitchen": ("kitchen", 202),

@@ -21,6 +21,9 @@ def build_mesh(bpy, name: str, data: MeshData):
     """Mesh data-block from the normalised arrays; foreach_set keeps big BOP meshes fast."""
     v = np.ascontiguousarray(data.vertices, dtype=np.float32)
     f = np.ascontiguousarray(data.faces, dtype=np.int32)
+    # A triangle naming one vertex twice (zero area, met in library furniture) is an invalid
+    # polygon to Blender, and setting custom normals on such a mesh crashes it.
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
     nv, nf = len(v), len(f)
     me = bpy.data.meshes.new(name)
     me.vertices.add(nv)
