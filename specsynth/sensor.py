@@ -1,6 +1,6 @@
 """The camera's sensor and processing, applied after rendering: the same in every backend.
 
-RGB: auto white balance divides out the colour of the light in view (the render over the view's
+RGB: auto exposure meters the image to middle grey; auto white balance divides out the colour of the light in view (the render over the view's
 albedo: what a camera's AWB estimates, here known exactly), then exposure and white-balance errors scale the linear radiance, then shot noise (std
 proportional to the square root of the signal) and read noise (constant std) are added, all in
 linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
@@ -39,6 +39,20 @@ def balance_gains(light: np.ndarray | None) -> np.ndarray:
     return np.clip(float(light @ REC709_LUMA) / np.maximum(light, 1e-12), *AWB_GAINS)
 
 
+MIDDLE_GREY = 0.18
+AE_RANGE = (1.0 / 16.0, 16.0)
+
+
+def exposure_gain(linear: np.ndarray) -> float:
+    """The factor that brings the image's log-average luminance to middle grey (Reinhard's key), as
+    a camera's average metering does; within AE_RANGE; 1 for a black image."""
+    y = np.asarray(linear, np.float64) @ REC709_LUMA
+    if not np.any(y > 0):
+        return 1.0
+    log_mean = float(np.exp(np.mean(np.log(np.maximum(y, 1e-4)))))
+    return float(np.clip(MIDDLE_GREY / log_mean, *AE_RANGE))
+
+
 def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng: np.random.Generator,
                albedo8: np.ndarray | None = None) -> np.ndarray:
     """The sensor's 8-bit sRGB image of a render (its linear radiance, or its 8-bit image decoded);
@@ -55,6 +69,8 @@ def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng:
             raise ValueError("auto white balance needs the view's albedo map")
         albedo = srgb_to_linear(np.asarray(albedo8, np.float64) / 255.0)
         x = x * balance_gains(illuminant(x, albedo, clipped=np.inf if linear is not None else 0.99))
+    if sensor.auto_exposure:
+        x = x * exposure_gain(x)
     gains = np.asarray(kelvin_rgb(6500.0)) / np.asarray(kelvin_rgb(kelvin))
     x = x * (2.0 ** stops) * (gains / gains.mean())
     noise_std = np.sqrt(sensor.shot_noise ** 2 * x + sensor.read_noise ** 2)

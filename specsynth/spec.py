@@ -465,6 +465,9 @@ class Sensor(Strict):
         False, description="Balance each image for the light in view, as a camera's auto white balance does: the "
         "illuminant is the render over the view's albedo (diffuse colour), so a grey surface comes out grey "
         "under a 2700 K lamp and wood stays wood (gains limited to [0.2, 5]).")
+    auto_exposure: bool = Field(
+        False, description="Meter each image as a camera's auto exposure does: scale it so the geometric mean of its "
+        "luminance is middle grey (0.18 linear), by a factor within [1/16, 16]; applied before 'exposure' jitter.")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")
     depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
@@ -479,7 +482,7 @@ class Sensor(Strict):
     @property
     def affects_rgb(self) -> bool:
         return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance
-                    or self.auto_white_balance)
+                    or self.auto_white_balance or self.auto_exposure)
 
 
 # --------------------------------------------------------------------------- outputs

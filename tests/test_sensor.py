@@ -14,8 +14,8 @@ from PIL import Image
 from specsynth.build import build
 from specsynth.colour import linear_to_srgb8, srgb_to_linear
 from specsynth.compiler import compile_spec
-from specsynth.sensor import (AWB_GAINS, REC709_LUMA, balance_gains, illuminant, jpeg_quality, sensor_depth,
-                              sensor_rgb)
+from specsynth.sensor import (AE_RANGE, AWB_GAINS, MIDDLE_GREY, REC709_LUMA, balance_gains, exposure_gain, illuminant,
+                              jpeg_quality, sensor_depth, sensor_rgb)
 from specsynth.spec import DepthSensor, Sensor
 from specsynth.yamlio import SpecError, load_spec
 
@@ -183,3 +183,20 @@ def test_auto_white_balance_neutralises_a_warm_room_in_a_real_render(tmp_path):
     # Brightness about kept (exactly in the property test above; here the warm image's red channel
     # clips on bright surfaces, which drops them from its measurement).
     assert np.allclose(after @ REC709_LUMA, before @ REC709_LUMA, rtol=0.25)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(1e-3, 50.0), st.integers(0, 2 ** 31))
+def test_auto_exposure_meters_to_middle_grey(scale, seed):
+    """Any image, at any brightness: after metering its log-average luminance is 0.18 (within the
+    camera's 1/16-16x range), and the metered image does not depend on how bright the render was."""
+    img = np.random.default_rng(seed).uniform(0.05, 1.0, (20, 30, 3)) * scale
+    g = exposure_gain(img)
+    y = (img * g) @ REC709_LUMA
+    key = float(np.exp(np.mean(np.log(y))))
+    if AE_RANGE[0] < g < AE_RANGE[1]:
+        assert key == pytest.approx(MIDDLE_GREY, rel=1e-9)
+        assert np.allclose(img * g, (img / scale) * exposure_gain(img / scale), rtol=1e-9)
+    else:
+        assert g in AE_RANGE
+    assert exposure_gain(np.zeros((4, 4, 3))) == 1.0
