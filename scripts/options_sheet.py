@@ -2,8 +2,9 @@
 
     .venv/bin/python scripts/options_sheet.py --out docs/images/options.jpg
 
-One view of the `kitchen` scene built twice with Cycles (plain, and with a `sensor:` block) and
-every extra output on: RGB, sensor RGB, albedo, normals, NOCS, depth, sensor depth.
+One view of the `kitchen` scene built three times with Cycles (plain, with a `sensor:` block, and
+through a distorting lens) and every extra output on: RGB, sensor RGB, albedo, normals, NOCS,
+depth, sensor depth, and the lens's RGB with its visible masks' outlines.
 """
 
 from __future__ import annotations
@@ -32,6 +33,15 @@ outputs: {image_format: png, normals: true, nocs: true, albedo: true}
 """
 SENSOR = ["sensor={shot_noise: 0.04, read_noise: 0.01, exposure: [0.5, 0.5], white_balance: [4000, 4000], "
           "depth: {axial_noise: [0.002, 0.004], edge_holes: 2, dropout: 0.02}}"]
+LENS = ["intrinsics.distortion=[-0.35, 0.12, 0.0, 0.0, 0.0]", "outputs.normals=false", "outputs.nocs=false"]
+
+
+def _outlined(rgb: np.ndarray, chunk: Path) -> np.ndarray:
+    out = rgb[..., :3].copy()
+    for f in sorted((chunk / "mask_visib").glob("000000_*.png")):
+        m = np.asarray(Image.open(f)) > 0
+        out[m ^ np.roll(m, 1, 0) | m ^ np.roll(m, 1, 1)] = (0, 255, 0)
+    return out
 
 
 def _exr(path: Path) -> np.ndarray:
@@ -55,7 +65,8 @@ def main() -> None:
         spec.write_text(SPEC)
         build(compile_spec(load_spec(spec)), Path(tmp) / "plain", jobs=1)
         build(compile_spec(load_spec(spec, SENSOR)), Path(tmp) / "sensor", jobs=1)
-        c, s = (Path(tmp) / d / "bop" / "train_pbr" / "000000" for d in ("plain", "sensor"))
+        build(compile_spec(load_spec(spec, LENS)), Path(tmp) / "lens", jobs=1)
+        c, s, ln = (Path(tmp) / d / "bop" / "train_pbr" / "000000" for d in ("plain", "sensor", "lens"))
         n = _exr(c / "normals" / "000000.exr")
         depth = np.asarray(Image.open(c / "depth" / "000000.png"), np.float64)
         tiles = [
@@ -66,6 +77,7 @@ def main() -> None:
             ("nocs", (_exr(c / "nocs" / "000000.exr") * 255).astype(np.uint8)),
             ("depth", _grey(depth, depth.max())),
             ("sensor depth", _grey(np.asarray(Image.open(s / "depth_noisy" / "000000.png"), np.float64), depth.max())),
+            ("lens k1 -0.35 k2 0.12, masks", _outlined(np.asarray(Image.open(ln / "rgb" / "000000.png")), ln)),
         ]
     w, h = tiles[0][1].shape[1], tiles[0][1].shape[0]
     cols = 4

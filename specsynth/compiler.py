@@ -59,7 +59,8 @@ def _limit(env: str, default: float) -> float:
 
 
 def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
-    """Located problems for a plan or an image too large to build on purpose."""
+    """Located problems the spec alone shows: a plan or an image too large to build on purpose, outputs
+    a lens cannot give yet."""
     problems = []
     images = spec.arrangements.count * spec.cameras.per_arrangement
     max_images = _limit("SPECSYNTH_MAX_IMAGES", MAX_IMAGES)
@@ -73,6 +74,11 @@ def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
         problems.append(loaded.locate("intrinsics.width", f"a {spec.intrinsics.width} x {spec.intrinsics.height} image "
                                       f"needs about {need / (1 << 30):.1f} GiB per worker ({BYTES_PER_PIXEL} B/pixel), over "
                                       f"the limit of {max_bytes / (1 << 30):.1f} GiB (set SPECSYNTH_MAX_WORKER_GB to raise it)"))
+    if spec.intrinsics.distortion:
+        for name in ("normals", "nocs"):
+            if getattr(spec.outputs, name):
+                problems.append(loaded.locate(f"outputs.{name}", f"{name} maps are not written through lens "
+                                              "distortion yet (intrinsics.distortion is set); turn one of them off"))
     return problems
 
 

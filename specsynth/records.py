@@ -124,6 +124,7 @@ class ImageRecord:
     nocs_file: str | None = None  # float32 EXR, NOCS in [0, 1]
     albedo_file: str | None = None  # 8-bit sRGB PNG, unlit diffuse colour
     depth_noisy_file: str | None = None  # uint16 PNG like depth_file: the RGB-D sensor model's depth
+    distortion: list[float] | None = None  # OpenCV [k1, k2, p1, p2, k3] the image was warped with
     render_seconds: float = 0.0
     stats: dict[str, Any] = field(default_factory=dict)
 

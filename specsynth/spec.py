@@ -19,6 +19,7 @@ from pydantic import (
     Field,
     SerializeAsAny,
     Tag,
+    ValidationInfo,
     create_model,
     field_validator,
     model_validator,
@@ -285,6 +286,27 @@ class Intrinsics(Strict):
     cx: float = Field(325.2611)
     cy: float = Field(242.04899)
     clip: FloatRange(positive=True) = Field((0.01, 100.0), description="Near and far clip, metres.")
+    distortion: tuple[float, float, float, float, float] | None = Field(
+        None, description="Lens distortion, OpenCV's Brown-Conrady coefficients [k1, k2, p1, p2, k3] (unitless, on "
+        "normalised image coordinates, as cv2.projectPoints takes them). The image is rendered as an ideal pinhole "
+        "over the distorted image's rays, then warped: colour bilinear, masks and depth nearest; cam_K stays the "
+        "pinhole K and scene_camera.json adds cam_dist. Coefficients that fold the image are refused.")
+
+    @field_validator("distortion")
+    @classmethod
+    def _lens(cls, v, info: ValidationInfo):
+        if v is None or not any(v):
+            return None
+        from .lens import LensError, check
+
+        d = info.data
+        if not all(key in d for key in ("width", "height", "fx", "fy", "cx", "cy")):
+            return v  # another field is already wrong
+        try:
+            check(((d["fx"], 0.0, d["cx"]), (0.0, d["fy"], d["cy"]), (0.0, 0.0, 1.0)), d["width"], d["height"], v)
+        except LensError as e:
+            raise ValueError(str(e)) from None
+        return v
 
 
 

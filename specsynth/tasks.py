@@ -16,13 +16,13 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from . import cameras, seeds
+from . import cameras, lens, seeds
 from .assets import ObjectAsset, resolve_objects
 from .plugins import backend_plugin
-from .colour import check_finite
+from .colour import check_finite, linear_to_srgb8
 from .sensor import jpeg_quality, sensor_depth, sensor_rgb
 from .compiler import Job, arr_id
-from .ir import MeshInstance, RenderScene, as_tuple
+from .ir import MeshInstance, RenderResult, RenderScene, as_tuple
 from .records import ArrangementRecord, ImageRecord, PlacedObject, ViewRecord
 from .scenes import load_scene, procedural_name
 from .scenes.types import SceneDesc
@@ -59,6 +59,7 @@ class Worker:
         self._draws_scene = True
         self._albedo = None
         self._albedo_key: str | None = None
+        self._warp = None
         self._distractors: dict[str, ObjectAsset] = {}
         self._has_uv: dict[str, bool] = {}
         # What the annotator / backend hold now: (arrangement key, seconds its load took).
@@ -86,12 +87,24 @@ class Worker:
             self._scenes[key] = load_scene(ref, self.ctx.spec_dir, clearance=clearance, variant=variant)
         return self._scenes[key]
 
+    def lens_warp(self):
+        """The lens warp of the spec's intrinsics (computed once per worker), None without distortion."""
+        k = self.spec.intrinsics.distortion
+        if k is None:
+            return None
+        if self._warp is None:
+            intr = self.spec.intrinsics
+            self._warp = lens.warp_for(cameras.intrinsics_matrix(intr), intr.width, intr.height, k)
+        return self._warp
+
     def albedo(self, arrange_key: str, scene: RenderScene):
         """The albedo renderer with this arrangement loaded (once per arrangement)."""
         if self._albedo is None:
             from .albedo import AlbedoRenderer
 
-            self._albedo = AlbedoRenderer(self.spec.intrinsics.width, self.spec.intrinsics.height)
+            warp = self.lens_warp()  # through a lens, the albedo is drawn like the colour: pinhole, then warped
+            size = (warp.width, warp.height) if warp else (self.spec.intrinsics.width, self.spec.intrinsics.height)
+            self._albedo = AlbedoRenderer(*size)
             self._albedo_key = None
         if self._albedo_key != arrange_key:
             self._albedo.load(scene if self._draws_scene else scene.objects_only())
@@ -354,19 +367,25 @@ class Worker:
         occluders = "scene" if self._draws_scene else "objects"
         preset = spec.quality.resolved()
         ext = spec.outputs.image_format
+        warp = self.lens_warp()
         out = []
         for view_job, job in pairs:
             if self.store.has("render", job.key):  # finished before a retry
                 continue
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
             cam = self.camera(view.R_w2c, view.t_w2c, origin)
+            cam_r = lens.render_camera(cam, warp) if warp else cam
             t1 = time.perf_counter()
-            res = backend.render(cam, preset, job.seed, clamp=spec.quality.clamp)
+            res = backend.render(cam_r, preset, job.seed, clamp=spec.quality.clamp)
             seconds = time.perf_counter() - t1
             if res.linear is not None:
                 check_finite(res.linear, f"{spec.backend.name} render of {job.id}")
             t2 = time.perf_counter()
-            ann = annot.annotate(cam, spec.visibility.delta, occluders)
+            if warp:
+                ann = annot.annotate_lens(cam, warp, spec.intrinsics.distortion, spec.visibility.delta, occluders)
+                res = through_lens(res, warp)
+            else:
+                ann = annot.annotate(cam, spec.visibility.delta, occluders)
             t3 = time.perf_counter()
             wd = self.store.begin()
             rgb_file = f"rgb.{ext}"
@@ -374,7 +393,8 @@ class Worker:
                 seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
             albedo8 = None
             if spec.outputs.albedo or spec.sensor.auto_white_balance:
-                albedo8 = self.albedo(arrange_key, scene).render(cam)
+                albedo8 = self.albedo(arrange_key, scene).render(cam_r)
+                albedo8 = lens.remap_nearest(albedo8, warp) if warp else albedo8
             rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb, albedo8)
             if ext == "jpg":
                 write_jpg(wd / rgb_file, rgb, jpeg_quality(spec.sensor, spec.outputs.jpeg_quality, rng_jpeg))
@@ -421,6 +441,7 @@ class Worker:
                 rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
                 exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, depth_noisy_file=depth_noisy_file,
                 albedo_file=albedo_file, render_seconds=seconds, stats=stats,
+                distortion=list(spec.intrinsics.distortion) if warp else None,
             )
             t5 = time.perf_counter()
             self.store.commit("render", job.key, wd, rec.to_json())
@@ -438,6 +459,16 @@ def render_phases(backend_phases: dict | None, render_seconds: float, **core: fl
     phases["render.other"] = max(0.0, render_seconds - sum(phases.values()))
     phases.update({k: float(v) for k, v in core.items()})
     return {k: round(v, 5) for k, v in phases.items()}
+
+
+def through_lens(res: RenderResult, warp) -> RenderResult:
+    """A pinhole render warped into the distorted image: radiance interpolated (bilinear), then
+    encoded by the same sRGB transform every backend uses; an 8-bit-only render interpolated as is."""
+    if res.linear is not None:
+        linear = np.maximum(lens.remap_bilinear(res.linear, warp), 0.0).astype(np.float32)
+        return replace(res, linear=linear, rgb=linear_to_srgb8(linear))
+    rgb = np.clip(np.rint(lens.remap_bilinear(res.rgb, warp)), 0, 255).astype(np.uint8)
+    return replace(res, rgb=rgb)
 
 
 def draw_distractors(d, rng: np.random.Generator) -> list[str]:

@@ -109,12 +109,15 @@ def _remove_unexpected(folder: Path, pattern: re.Pattern, keep: set[str]) -> int
 
 
 def scene_camera_entry(rec: ImageRecord) -> dict[str, Any]:
-    return {
+    entry = {
         "cam_K": np.asarray(rec.K, dtype=np.float64).reshape(-1).tolist(),
         "depth_scale": float(rec.depth_scale),
         "cam_R_w2c": rotation_list(rec.R_w2c, f"image {rec.index} R_w2c"),
         "cam_t_w2c": vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
     }
+    if rec.distortion:  # OpenCV's order, as cv2.projectPoints(..., cam_K, cam_dist) takes it
+        entry["cam_dist"] = [float(c) for c in rec.distortion]
+    return entry
 
 
 def scene_gt_entry(rec: ImageRecord) -> list[dict[str, Any]]:

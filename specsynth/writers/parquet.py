@@ -57,6 +57,7 @@ IMAGES_SCHEMA = pa.schema(
         ("nocs", pa.string()),
         ("depth_noisy", pa.string()),
         ("albedo", pa.string()),
+        ("distortion", _F64_LIST),
     ]
 )
 
@@ -150,7 +151,7 @@ def write_parquet(
                 "R_w2c": rotation_list(rec.R_w2c, f"image {rec.index} R_w2c"),
                 "t_w2c_mm": vec_mm(rec.t_w2c, f"image {rec.index} t_w2c"),
                 "depth_scale": float(rec.depth_scale), "n_instances": len(rec.instances),
-                **paths,
+                **paths, "distortion": list(rec.distortion) if rec.distortion else None,
             }
         )
         timing_rows.append({"chunk": chunk, "im_id": im_id, "index": rec.index, "render_seconds": float(rec.render_seconds)})

@@ -1,0 +1,163 @@
+"""Lens distortion: the model is OpenCV's (checked against cv2.projectPoints), inverts exactly,
+refuses coefficients that fold the image, and a real build's masks, boxes, depth and colour all
+follow the distorted image: model points projected by OpenCV land on their masks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from PIL import Image
+
+from specsynth import lens
+from specsynth.build import build
+from specsynth.compiler import compile_spec
+from specsynth.meshio import read_mesh
+from specsynth.yamlio import SpecError, load_spec
+
+cv2 = pytest.importorskip("cv2")
+
+K = np.array([[115.0, 0.0, 63.5], [0.0, 116.0, 47.0], [0.0, 0.0, 1.0]])
+W, H = 128, 96
+coefficients = st.tuples(st.floats(-0.3, 0.3), st.floats(-0.1, 0.1), st.floats(-0.005, 0.005),
+                         st.floats(-0.005, 0.005), st.floats(-0.05, 0.05))
+
+
+@settings(max_examples=80, deadline=None)
+@given(coefficients, st.integers(0, 2 ** 31))
+def test_distort_is_opencvs_model(k, seed):
+    pts = np.random.default_rng(seed).uniform(-0.6, 0.6, (50, 2))
+    xyz = np.concatenate([pts, np.ones((50, 1))], axis=1)
+    want, _ = cv2.projectPoints(xyz, np.zeros(3), np.zeros(3), K, np.array(k))
+    got = lens.distorted_pixels(K, pts * [K[0, 0], K[1, 1]] + K[:2, 2], k)
+    assert np.abs(got - want.reshape(-1, 2)).max() < 1e-6
+
+
+@settings(max_examples=80, deadline=None)
+@given(coefficients)
+def test_undistort_inverts_distort_over_the_image(k):
+    try:
+        lens.check(K, W, H, k)
+    except lens.LensError:
+        return  # a folding lens is refused, not inverted
+    warp = lens.warp_for(K, W, H, k)
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    back = lens.distorted_pixels(K, np.stack([warp.map_u + warp.x0, warp.map_v + warp.y0], -1), k)
+    assert np.abs(back - np.stack([u, v], -1)).max() < 1e-4
+    # The window covers every lookup with a pixel to spare for bilinear interpolation.
+    assert warp.map_u.min() >= 0 and warp.map_u.max() <= warp.width - 2
+    assert warp.map_v.min() >= 0 and warp.map_v.max() <= warp.height - 2
+
+
+def test_folding_coefficients_are_refused():
+    for k in ([-0.9, 0, 0, 0, 0], [1.5, -3.0, 0, 0, 0], [0.0, 0.0, 0.0, 0.0, -40.0]):
+        with pytest.raises(lens.LensError):
+            lens.check(K, W, H, k)
+    lens.check(K, W, H, [-0.25, 0.08, 0.002, -0.001, 0.0])
+
+
+SPEC = """\
+name: lens
+seed: 11
+intrinsics: {width: 128, height: 96, fx: 115.0, fy: 116.0, cx: 63.5, cy: 47.0,
+             distortion: [-0.25, 0.08, 0.002, -0.001, 0.0]}
+objects: {builtin: [duck, mug, jenga, lego, teddy, torus]}
+scenes: [{name: room}]
+arrangements: {count: 1}
+cameras: {per_arrangement: 3, distance: [0.25, 0.35]}
+backend: {name: photo, backgrounds: BACKGROUNDS}
+outputs: {image_format: png, coco: false}
+"""
+
+
+@pytest.fixture(scope="module")
+def lens_build(tmp_path_factory):
+    d = tmp_path_factory.mktemp("lens")
+    bg = d / "black"
+    bg.mkdir()
+    for i in range(2):
+        Image.fromarray(np.zeros((480, 640, 3), np.uint8)).save(bg / f"{i}.png")
+    (d / "s.yaml").write_text(SPEC.replace("BACKGROUNDS", str(bg)))
+    result = build(compile_spec(load_spec(d / "s.yaml")), d / "out", jobs=1)
+    assert not result.failures and result.images >= 2
+    return d / "out"
+
+
+def _model_points(out, obj_id: int) -> np.ndarray:
+    return read_mesh(str(out / "bop" / "models" / f"obj_{obj_id:06d}.ply")).vertices.astype(np.float64)  # mm
+
+
+def test_opencv_projections_land_on_the_masks(lens_build):
+    """Every model vertex cv2.projectPoints puts inside the image lies on the object's amodal mask
+    (one pixel of tolerance: the mask is sampled at pixel centres); without the distortion
+    coefficients the same points miss by pixels, so the test sees the lens."""
+    chunk = lens_build / "bop" / "train_pbr" / "000000"
+    cams = json.loads((chunk / "scene_camera.json").read_text())
+    gts = json.loads((chunk / "scene_gt.json").read_text())
+    checked, moved = 0, []
+    for im, cam in cams.items():
+        Kc, dist = np.array(cam["cam_K"]).reshape(3, 3), np.array(cam["cam_dist"])
+        assert dist.tolist() == [-0.25, 0.08, 0.002, -0.001, 0.0]
+        for gt_id, gt in enumerate(gts[im]):
+            mask = np.asarray(Image.open(chunk / "mask" / f"{int(im):06d}_{gt_id:06d}.png")) > 0
+            grown = mask.copy()
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    grown |= np.roll(np.roll(mask, dy, 0), dx, 1)
+            rvec, _ = cv2.Rodrigues(np.array(gt["cam_R_m2c"]).reshape(3, 3))
+            t = np.array(gt["cam_t_m2c"], np.float64)
+            pts = _model_points(lens_build, gt["obj_id"])
+            uv = cv2.projectPoints(pts, rvec, t, Kc, dist)[0].reshape(-1, 2)
+            flat = cv2.projectPoints(pts, rvec, t, Kc, np.zeros(5))[0].reshape(-1, 2)
+            inside = (uv[:, 0] > 0.5) & (uv[:, 1] > 0.5) & (uv[:, 0] < W - 1.5) & (uv[:, 1] < H - 1.5)
+            if inside.sum() < 20:
+                continue
+            px = np.rint(uv[inside]).astype(int)
+            assert grown[px[:, 1], px[:, 0]].mean() > 0.99, (im, gt_id)
+            moved.append(np.linalg.norm(uv[inside] - flat[inside], axis=1).mean())
+            checked += 1
+    assert checked >= 6 and max(moved) > 2.0, moved
+
+
+def test_boxes_depth_and_colour_follow_the_distorted_image(lens_build):
+    chunk = lens_build / "bop" / "train_pbr" / "000000"
+    info = json.loads((chunk / "scene_gt_info.json").read_text())
+    for im, entries in info.items():
+        rgb = np.asarray(Image.open(chunk / "rgb" / f"{int(im):06d}.png").convert("RGB"))
+        depth = np.asarray(Image.open(chunk / "depth" / f"{int(im):06d}.png"))
+        union = np.zeros((H, W), bool)
+        for gt_id, e in enumerate(entries):
+            visib = np.asarray(Image.open(chunk / "mask_visib" / f"{int(im):06d}_{gt_id:06d}.png")) > 0
+            union |= visib
+            assert e["px_count_visib"] == int(visib.sum())
+            if visib.any():
+                ys, xs = np.nonzero(visib)
+                assert e["bbox_visib"] == [xs.min(), ys.min(), xs.max() - xs.min(), ys.max() - ys.min()]
+                assert (depth[visib] > 0).all()  # the depth is warped like the masks
+                assert 0 < e["visib_fract"] <= 1 and e["px_count_all"] >= e["px_count_visib"]
+        # The photo baseline draws the objects over a black photograph: lit pixels are the objects'.
+        # Colour is anti-aliased and interpolated, masks are not: they may differ within two pixels
+        # of an edge, nowhere else.
+        lit = rgb.max(axis=-1) > 12
+        near_edge = np.zeros_like(union)
+        for dy in range(-2, 3):
+            for dx in range(-2, 3):
+                near_edge |= union != np.roll(np.roll(union, dy, 0), dx, 1)
+        assert not ((lit != union) & ~near_edge).any(), im
+        assert (lit & union).sum() > 0.8 * union.sum()
+
+
+def test_bad_distortion_is_a_located_error(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC.replace("[-0.25, 0.08, 0.002, -0.001, 0.0]", "[-0.9, 0.0, 0.0, 0.0, 0.0]")
+                 .replace("BACKGROUNDS", "builtin"))
+    with pytest.raises(SpecError) as e:
+        load_spec(f)
+    msg = str(e.value)
+    assert "s.yaml:4:" in msg and "intrinsics.distortion" in msg and "fold" in msg
+    f.write_text(SPEC.replace("BACKGROUNDS", "builtin").replace("coco: false}", "coco: false, normals: true}"))
+    with pytest.raises(SpecError, match="outputs.normals"):
+        compile_spec(load_spec(f))
