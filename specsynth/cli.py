@@ -273,6 +273,7 @@ def backend_rows() -> list[dict]:
         rows.append({
             "name": p.name, "fingerprint": p.fingerprint(),
             "capabilities": {"draws_scene": caps.draws_scene, "denoise": caps.denoise, "gpu": caps.gpu,
+                             "depth_of_field": caps.depth_of_field,
                              "material_channels": sorted(caps.material_channels), "quality": caps.quality},
             "options": {k: f.default for k, f in p.options.model_fields.items() if k != "name"},
         })
@@ -291,7 +292,7 @@ def cmd_backends(args) -> int:
             print(f"{r['name']:10s} BROKEN: {r['error']}")
             continue
         c = r["capabilities"]
-        flags = [k for k in ("draws_scene", "denoise", "gpu") if c[k]]
+        flags = [k for k in ("draws_scene", "denoise", "gpu", "depth_of_field") if c[k]]
         print(f"{r['name']:10s} {r['fingerprint']}\n{'':10s} can: {', '.join(flags) or '-'}; materials: "
               f"{', '.join(c['material_channels'])}\n{'':10s} options: "
               + ", ".join(f"{k}={v!r}" for k, v in r["options"].items()))
@@ -375,17 +376,15 @@ def cmd_export(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
-    ap.add_argument("--debug", action="store_true", help="show tracebacks")
-    sub = ap.add_subparsers(dest="cmd", required=True)
+def _with_set(p):
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override a spec field, e.g. --set cameras.distance=[0.5,1.0]")
+    return p
 
-    def with_set(p):
-        p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                       help="override a spec field, e.g. --set cameras.distance=[0.5,1.0]")
-        return p
 
-    p = with_set(sub.add_parser("validate", help="check specs; report FILE:LINE:COL: field: message"))
+def _spec_commands(sub) -> None:
+    """Commands on specs: check, compile, plan, build, compare."""
+    p = _with_set(sub.add_parser("validate", help="check specs; report FILE:LINE:COL: field: message"))
     p.add_argument("specs", nargs="+")
     p.set_defaults(fn=cmd_validate)
 
@@ -395,18 +394,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--backends", help="comma-separated plugins to include (default: every installed one)")
     p.set_defaults(fn=cmd_schema)
 
-    p = with_set(sub.add_parser("compile", help="compile a spec into its job graph (no rendering)"))
+    p = _with_set(sub.add_parser("compile", help="compile a spec into its job graph (no rendering)"))
     p.add_argument("spec")
     p.add_argument("--jobs-out", help="write every job as JSON lines to this file")
     p.set_defaults(fn=cmd_compile)
 
-    p = with_set(sub.add_parser("plan", help="jobs per stage: existing, cached, to run"))
+    p = _with_set(sub.add_parser("plan", help="jobs per stage: existing, cached, to run"))
     p.add_argument("spec")
     p.add_argument("--out", required=True)
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_plan)
 
-    p = with_set(sub.add_parser("build", help="build a dataset"))
+    p = _with_set(sub.add_parser("build", help="build a dataset"))
     p.add_argument("spec")
     p.add_argument("--out", required=True)
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
@@ -415,12 +414,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(fn=cmd_build)
 
-    p = with_set(sub.add_parser("diff", help="compare two output folders or two specs"))
+    p = _with_set(sub.add_parser("diff", help="compare two output folders or two specs"))
     p.add_argument("a")
     p.add_argument("b")
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_diff)
 
+
+def _library_commands(sub) -> None:
+    """What is installed: scenes, backends, furniture."""
     p = sub.add_parser("scenes", help="list built-in scenes and their stages, preview one, or show a scene's stages")
     p.add_argument("action", nargs="?", choices=["list", "preview", "show"], default="list")
     p.add_argument("name", nargs="?", help="built-in scene name, or (show) a scene file")
@@ -446,6 +448,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_furniture)
 
+
+def _dataset_commands(sub) -> None:
+    """Commands on built datasets: look, measure, bench, export."""
     p = sub.add_parser("view", help="contact sheet of sampled images with boxes, mask outlines, ids")
     p.add_argument("outs", nargs="+", help="one output folder, or two to compare (e.g. PBR and BL)")
     p.add_argument("--out", required=True, help="PNG file to write")
@@ -458,7 +463,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True, help="folder for stats.png and stats.json")
     p.set_defaults(fn=cmd_stats)
 
-    p = with_set(sub.add_parser("bench", help="render time against image error for every installed backend"))
+    p = _with_set(sub.add_parser("bench", help="render time against image error for every installed backend"))
     p.add_argument("spec")
     p.add_argument("--out", required=True)
     p.add_argument("--views", type=int, default=2)
@@ -483,6 +488,19 @@ def main(argv: list[str] | None = None) -> int:
                    help="hold out this fraction of arrangements as the validation set (default 0: val = train)")
     p.set_defaults(fn=cmd_export)
 
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
+    ap.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    _spec_commands(sub)
+    _library_commands(sub)
+    _dataset_commands(sub)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = parser()
     args = ap.parse_args(argv)
     try:
         return args.fn(args)

@@ -166,6 +166,8 @@ class CameraIR:
     t_w2c: tuple[float, float, float]  # metres
     near: float = 0.01
     far: float = 100.0
+    aperture: float = 0.0  # thin-lens aperture diameter, metres (0: pinhole)
+    focus_distance: float = 0.0  # metres along the optical axis to the plane in focus
 
     def translated(self, offset) -> "CameraIR":
         """The same view of a scene moved by ``-offset``: ``t' = t + R @ offset``."""

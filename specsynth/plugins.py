@@ -31,6 +31,7 @@ class Capabilities:
     draws_scene: bool = True  # False: draws only the dataset objects (the photo baseline)
     denoise: bool = False  # has a denoiser; False also for renderers without sampling noise
     gpu: bool = False
+    depth_of_field: bool = False  # renders CameraIR.aperture / focus_distance (a thin lens)
     material_channels: frozenset[str] = frozenset({"base_color"})
     quality: str = ""  # one line: how the paper's presets map onto this renderer
 

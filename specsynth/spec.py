@@ -310,6 +310,24 @@ class Intrinsics(Strict):
 
 
 
+class DepthOfField(Strict):
+    """A thin lens focused on the camera's focused object (the one it aims at), drawn per image."""
+
+    aperture: FloatRange(0.0, 500.0) = Field((4.0, 4.0), description="Aperture (entrance pupil) diameter, "
+                                             "millimetres, drawn per image in this range: a phone ~2, a 50 mm "
+                                             "lens at f/2 25. Blur grows with it.")
+    focus_jitter: float = Field(0.0, ge=0, le=10, description="Focus distance moved by up to +/- this many metres "
+                                "from the focused object's centre.")
+
+    @field_validator("aperture")
+    @classmethod
+    def _open(cls, v):
+        if v[0] <= 0:
+            raise ValueError("an aperture of 0 mm has no depth of field: give a diameter > 0, or remove "
+                             "depth_of_field for a pinhole")
+        return v
+
+
 class Cameras(Strict):
     per_arrangement: int = Field(5, ge=1, le=100_000, description="Cameras per arrangement.")
     azimuth: FloatRange(-720, 720) = Field((0.0, 360.0), description="Azimuth around the focused object, degrees.")
@@ -317,6 +335,9 @@ class Cameras(Strict):
     distance: FloatRange(0.02, 1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres (at least 2 cm: nearer is inside the object).")
     inplane: FloatRange(-360, 360) = Field((0.0, 0.0), description="In-plane rotation about the optical axis, degrees.")
     max_tries: int = Field(10, ge=1, le=1000, description="Camera resamples before a view is dropped.")
+    depth_of_field: DepthOfField | None = Field(
+        None, description="Defocus blur: a thin lens focused on the focused object. Masks and boxes stay those of "
+        "the sharp geometry (the pinhole through the lens centre).")
     clearance: float = Field(
         0.05, ge=0, le=10,
         description="Metres of free space a camera needs around it (nearest surface along the six axes); "

@@ -353,10 +353,70 @@ class Worker:
         eye = -np.asarray(s.R_w2c, np.float64).T @ np.asarray(s.t_w2c, np.float64)  # world frame
         return annot.free_distance(eye - origin) >= self.spec.cameras.clearance
 
-    def run_renders(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
+    def _focused(self, cam, scene: RenderScene, focus_inst: int, job: Job):
+        """``cam`` with its thin lens: an aperture drawn for this image, focused on the centre of
+        the object the camera aims at (its model origin, BOP's bounding-box centre)."""
+        dof = self.spec.cameras.depth_of_field
+        rng = np.random.default_rng(seeds.job_seed(self.spec.seed, f"{job.id}/lens"))
+        aperture_m = float(rng.uniform(*dof.aperture)) / 1000.0
+        jitter = float(rng.uniform(-dof.focus_jitter, dof.focus_jitter))
+        focus = next((o for o in scene.objects() if o.inst == focus_inst), None)
+        z = float((cam.T_w2c @ focus.matrix)[2, 3]) if focus is not None else 1.0
+        return replace(cam, aperture=aperture_m, focus_distance=max(z + jitter, 2.0 * cam.near))
+
+    def _write_image(self, wd: Path, job: Job, res, ann, cam, cam_r, arrange_key: str, scene) -> dict[str, Any]:
+        """Every file of one image into the store folder ``wd`` (sensor effects applied to the colour
+        image, each from its own seeded stream) -> the record's file fields and depth scale."""
         from .writers.coco import write_visible_rles
         from .writers.images import encode_depth, write_jpg, write_mask, write_png, write_exr
 
+        spec, warp = self.spec, self.lens_warp()
+        ext = spec.outputs.image_format
+        rgb_file = f"rgb.{ext}"
+        rng_rgb, rng_jpeg, rng_depth = (np.random.default_rng(ss) for ss in np.random.SeedSequence(
+            seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
+        albedo8 = None
+        if spec.outputs.albedo or spec.sensor.auto_white_balance:
+            albedo8 = self.albedo(arrange_key, scene).render(cam_r)
+            albedo8 = lens.remap_nearest(albedo8, warp) if warp else albedo8
+        rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb, albedo8)
+        if ext == "jpg":
+            write_jpg(wd / rgb_file, rgb, jpeg_quality(spec.sensor, spec.outputs.jpeg_quality, rng_jpeg))
+        else:
+            write_png(wd / rgb_file, rgb)
+        depth_file, scale = None, spec.outputs.depth_scale
+        if spec.outputs.depth:
+            depth16, scale = encode_depth(ann.depth, spec.outputs.depth_scale)
+            depth_file = "depth.png"
+            write_png(wd / depth_file, depth16)
+        if scale == "auto":
+            scale = 1.0
+        depth_noisy_file = None
+        if spec.outputs.depth and spec.sensor.depth is not None:
+            depth_noisy_file = "depth_noisy.png"
+            write_png(wd / depth_noisy_file, encode_depth(sensor_depth(ann.depth, spec.sensor.depth, rng_depth), scale)[0])
+        masks, masks_visib = [], []
+        if spec.outputs.masks:
+            for gt, (m, mv) in enumerate(zip(ann.masks, ann.masks_visib)):
+                masks.append(f"mask_{gt:06d}.png")
+                masks_visib.append(f"mask_visib_{gt:06d}.png")
+                write_mask(wd / masks[-1], m)
+                write_mask(wd / masks_visib[-1], mv)
+            write_visible_rles(wd, ann.masks_visib)
+        exr_file = None
+        if spec.outputs.exr and res.linear is not None:
+            exr_file = "rgb.exr"
+            write_exr(wd / exr_file, res.linear)
+        normals_file, nocs_file = self._geometry_maps(wd, cam, ann)
+        albedo_file = None
+        if spec.outputs.albedo:
+            albedo_file = "albedo.png"
+            write_png(wd / albedo_file, albedo8)
+        return dict(rgb_file=rgb_file, depth_file=depth_file, depth_scale=float(scale), mask_files=masks,
+                    mask_visib_files=masks_visib, exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file,
+                    depth_noisy_file=depth_noisy_file, albedo_file=albedo_file)
+
+    def run_renders(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
         spec = self.spec
         arr = ArrangementRecord.from_json(self.store.load("arrange", arrange_key))
         scene, origin = self.frame(arr)
@@ -366,7 +426,6 @@ class Worker:
         load_phase = load_seconds
         occluders = "scene" if self._draws_scene else "objects"
         preset = spec.quality.resolved()
-        ext = spec.outputs.image_format
         warp = self.lens_warp()
         out = []
         for view_job, job in pairs:
@@ -375,6 +434,8 @@ class Worker:
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
             cam = self.camera(view.R_w2c, view.t_w2c, origin)
             cam_r = lens.render_camera(cam, warp) if warp else cam
+            if spec.cameras.depth_of_field is not None:
+                cam_r = self._focused(cam_r, scene, view.focus_inst, job)
             t1 = time.perf_counter()
             res = backend.render(cam_r, preset, job.seed, clamp=spec.quality.clamp)
             seconds = time.perf_counter() - t1
@@ -388,46 +449,7 @@ class Worker:
                 ann = annot.annotate(cam, spec.visibility.delta, occluders)
             t3 = time.perf_counter()
             wd = self.store.begin()
-            rgb_file = f"rgb.{ext}"
-            rng_rgb, rng_jpeg, rng_depth = (np.random.default_rng(ss) for ss in np.random.SeedSequence(
-                seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
-            albedo8 = None
-            if spec.outputs.albedo or spec.sensor.auto_white_balance:
-                albedo8 = self.albedo(arrange_key, scene).render(cam_r)
-                albedo8 = lens.remap_nearest(albedo8, warp) if warp else albedo8
-            rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb, albedo8)
-            if ext == "jpg":
-                write_jpg(wd / rgb_file, rgb, jpeg_quality(spec.sensor, spec.outputs.jpeg_quality, rng_jpeg))
-            else:
-                write_png(wd / rgb_file, rgb)
-            depth_file, scale = None, spec.outputs.depth_scale
-            if spec.outputs.depth:
-                depth16, scale = encode_depth(ann.depth, spec.outputs.depth_scale)
-                depth_file = "depth.png"
-                write_png(wd / depth_file, depth16)
-            if scale == "auto":
-                scale = 1.0
-            depth_noisy_file = None
-            if spec.outputs.depth and spec.sensor.depth is not None:
-                depth_noisy_file = "depth_noisy.png"
-                write_png(wd / depth_noisy_file, encode_depth(sensor_depth(ann.depth, spec.sensor.depth, rng_depth), scale)[0])
-            masks, masks_visib = [], []
-            if spec.outputs.masks:
-                for gt, (m, mv) in enumerate(zip(ann.masks, ann.masks_visib)):
-                    masks.append(f"mask_{gt:06d}.png")
-                    masks_visib.append(f"mask_visib_{gt:06d}.png")
-                    write_mask(wd / masks[-1], m)
-                    write_mask(wd / masks_visib[-1], mv)
-                write_visible_rles(wd, ann.masks_visib)
-            exr_file = None
-            if spec.outputs.exr and res.linear is not None:
-                exr_file = "rgb.exr"
-                write_exr(wd / exr_file, res.linear)
-            normals_file, nocs_file = self._geometry_maps(wd, cam, ann)
-            albedo_file = None
-            if spec.outputs.albedo:
-                albedo_file = "albedo.png"
-                write_png(wd / albedo_file, albedo8)
+            files = self._write_image(wd, job, res, ann, cam, cam_r, arrange_key, scene)
             t4 = time.perf_counter()
             stats = dict(res.stats)
             stats["load_seconds"] = load_seconds
@@ -437,10 +459,8 @@ class Worker:
                 arr=job.arr, cam=job.cam, index=view.index, scene=arr.scene, stage=arr.stage,
                 backend=spec.backend.name, backend_version=backend.version(), quality=spec.quality.level,
                 seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
-                R_w2c=view.R_w2c, t_w2c=view.t_w2c, depth_scale=float(scale), instances=ann.instances,
-                rgb_file=rgb_file, depth_file=depth_file, mask_files=masks, mask_visib_files=masks_visib,
-                exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file, depth_noisy_file=depth_noisy_file,
-                albedo_file=albedo_file, render_seconds=seconds, stats=stats,
+                R_w2c=view.R_w2c, t_w2c=view.t_w2c, instances=ann.instances, render_seconds=seconds, stats=stats,
+                **files,
                 distortion=list(spec.intrinsics.distortion) if warp else None,
             )
             t5 = time.perf_counter()

@@ -90,3 +90,16 @@ def test_clean_tmp_spares_folders_of_live_processes(tmp_path):
     finally:
         child.kill()
         child.wait()
+
+
+def test_no_core_function_is_over_100_lines():
+    """Functions short enough to read at once (issue #21's bar): none in the core over 100 lines."""
+    import ast
+
+    root = Path(__file__).resolve().parents[1] / "specsynth"
+    long = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 100:
+                long.append(f"{path.relative_to(root)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1})")
+    assert not long, long

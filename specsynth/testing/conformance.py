@@ -426,6 +426,36 @@ def check_reload(ctx: ConformanceContext) -> None:
     _require(n == 0, ctx.name, f"after load(other scene), reloading a scene changed {n} pixel(s) (a leak?)")
 
 
+def _sharpness(img: np.ndarray, u: float, v: float, r: int) -> float:
+    """Mean absolute luminance gradient in a window: texture edges give it, blur takes it away."""
+    w = _window(img, u, v, r).mean(axis=-1)
+    return float(np.abs(np.diff(w, axis=0)).mean() + np.abs(np.diff(w, axis=1)).mean())
+
+
+def check_depth_of_field(ctx: ConformanceContext) -> None:
+    """A backend declaring depth_of_field renders a thin lens: focused on the checker-textured box,
+    the box stays about as sharp as through a pinhole; focused 4x farther, it blurs."""
+    if not ctx.plugin.capabilities.depth_of_field:
+        return
+    from dataclasses import replace
+
+    s = ctx.scenes
+    u, v, z = project(s.camera, BOX_CENTRE)
+    aperture = 0.05  # metres: a 4x focus error spreads the box's points over ~6 px here
+    quality = PAPER_PRESETS["medium"]  # enough samples that noise does not pass for texture
+    ctx.load(s.full)
+    images = {}
+    for label, cam in (("pinhole", s.camera), ("focused", replace(s.camera, aperture=aperture, focus_distance=z)),
+                       ("defocused", replace(s.camera, aperture=aperture, focus_distance=4 * z))):
+        images[label] = _sharpness(_rgb(ctx, ctx.backend.render(cam, quality, SEED)), u, v, 5)
+    _require(images["focused"] >= 0.7 * images["pinhole"], ctx.name,
+             f"the box in focus lost its texture (gradient {images['focused']:.1f} vs {images['pinhole']:.1f} "
+             "through a pinhole): is focus_distance measured along the optical axis, in metres?")
+    _require(images["defocused"] <= 0.5 * images["pinhole"], ctx.name,
+             f"the box out of focus stayed sharp (gradient {images['defocused']:.1f} vs {images['pinhole']:.1f}): "
+             "is CameraIR.aperture (diameter, metres) used?")
+
+
 CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
     "discovery": check_discovery,
     "version": check_version,
@@ -435,6 +465,7 @@ CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
     "camera_moves": check_camera_moves,
     "silhouettes": check_silhouettes,
     "reload": check_reload,
+    "depth_of_field": check_depth_of_field,
 }
 
 

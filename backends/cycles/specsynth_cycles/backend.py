@@ -227,6 +227,14 @@ class CyclesBackend:
         cam.lens = bi.lens
         cam.shift_x, cam.shift_y = bi.shift_x, bi.shift_y
         cam.clip_start, cam.clip_end = float(camera.near), float(camera.far)
+        # A thin lens: Blender's f-number is its focal length over the pupil's diameter, both in mm
+        # (1 Blender unit = 1 m), so the world-space pupil is exactly camera.aperture.
+        cam.dof.use_dof = camera.aperture > 0
+        if camera.aperture > 0:
+            cam.dof.focus_object = None
+            cam.dof.focus_distance = float(camera.focus_distance)
+            cam.dof.aperture_fstop = float(bi.lens / (camera.aperture * 1000.0))
+            cam.dof.aperture_blades = 0  # a round pupil, as Mitsuba's
         r = sc.render
         r.resolution_x, r.resolution_y = int(camera.width), int(camera.height)
         r.pixel_aspect_x, r.pixel_aspect_y = bi.pixel_aspect_x, bi.pixel_aspect_y

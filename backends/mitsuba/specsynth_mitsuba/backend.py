@@ -202,10 +202,14 @@ class MitsubaBackend:
 
     def _sensor_for(self, camera: CameraIR, st: mapping.IntegratorSettings):
         sset = mapping.sensor_settings(camera.K_array, camera.width, camera.height)
-        key = (camera.K, camera.width, camera.height, camera.near, camera.far, st.sampler, st.spp)
+        lens = camera.aperture > 0
+        key = (camera.K, camera.width, camera.height, camera.near, camera.far, st.sampler, st.spp, lens)
         if key != self._sensor_key:
             mi = self._mi
-            if self._use_k_sensor(sset):
+            if lens and not self._dr.is_jit_v(mi.Float):
+                raise ValueError("mitsuba: depth of field needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb); "
+                                 f"this one is {self.variant}")
+            if lens or self._use_k_sensor(sset):
                 K = camera.K_array
                 # exact for any upper-triangular K; same to_world frame, clip and children
                 optics = {
@@ -215,6 +219,7 @@ class MitsubaBackend:
                     "cx": float(K[0, 2]),
                     "cy": float(K[1, 2]),
                     "skew": float(K[0, 1]),
+                    **({"aperture_radius": camera.aperture / 2.0, "focus_distance": camera.focus_distance} if lens else {}),
                 }
             else:
                 # Mitsuba's own (C++) sensor when pixels are square: exact there, no Python in the loop
@@ -253,6 +258,9 @@ class MitsubaBackend:
     def _set_pose(self, camera: CameraIR) -> None:
         c2w = opencv_to_mitsuba_c2w(cam_to_world(np.asarray(camera.R_w2c), np.asarray(camera.t_w2c)))
         self._sensor_params["to_world"] = self._mi.Transform4f(c2w.tolist())
+        if camera.aperture > 0:
+            self._sensor_params["aperture_radius"] = camera.aperture / 2.0
+            self._sensor_params["focus_distance"] = camera.focus_distance
         self._sensor_params.update()
 
 

@@ -20,6 +20,11 @@ stores five opaque coefficients (computed in double precision) and evaluates
 
 for the sample (sx, sy) in [0, 1]^2 relative to the film's crop window.
 
+With ``aperture_radius`` > 0 it is a thin lens: the ray leaves a point of the pupil disk (the
+third sample, mapped concentrically) towards the point the pinhole ray meets at ``focus_distance``
+along the axis, so that plane stays sharp. Both are traversable and opaque (a new focus per image
+compiles nothing); whether there is a lens at all is fixed when the sensor is made.
+
 Like ``textures.py``, the class must derive from the *active variant's* ``mi.Sensor``, so it is
 made (and registered with Mitsuba's plugin registry) after ``mi.set_variant``.
 """
@@ -74,7 +79,13 @@ def register_pinhole_sensor(mi) -> None:
                 raise ValueError(f"{PINHOLE}: need 0 < near_clip < far_clip (got {self.near_clip}, {self.far_clip})")
             to_world = props.get("to_world", mi.ScalarTransform4f())  # a double-precision scalar transform
             self.to_world = mi.Transform4f(np.asarray(to_world.matrix, dtype=np.float32).reshape(4, 4))
-            self.m_needs_sample_3 = False  # no aperture: the sampler draws what it draws for perspective
+            radius = float(props.get("aperture_radius", 0.0))
+            self._lens = radius > 0
+            # drjit values (traverse can only hand out those), set here once and updated in place
+            self._aperture = mi.Float(radius)
+            self._focus = mi.Float(float(props.get("focus_distance", 1.0)))
+            # without a lens the sampler draws what it draws for perspective
+            self.m_needs_sample_3 = self._lens
             self._update()
             _check_rigid(self.to_world)
 
@@ -93,11 +104,14 @@ def register_pinhole_sensor(mi) -> None:
             self._near = mi.Float(self.near_clip)
             self._far = mi.Float(self.far_clip)
             # Opaque: kernel inputs rather than literals, so new values never recompile a kernel.
-            dr.make_opaque(self.to_world, self._coef, self._dx, self._dy, self._near, self._far)
+            dr.make_opaque(self.to_world, self._coef, self._dx, self._dy, self._near, self._far, self._aperture, self._focus)
             self.m_to_world = self.to_world  # mirrored for C++ callers of world_transform()
 
         def traverse(self, callback):
             callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
+            if self._lens:
+                callback.put("aperture_radius", self._aperture, mi.ParamFlags.NonDifferentiable)
+                callback.put("focus_distance", self._focus, mi.ParamFlags.NonDifferentiable)
             callback.put("film", self.film(), mi.ParamFlags.NonDifferentiable)
             callback.put("sampler", self.sampler(), mi.ParamFlags.NonDifferentiable)
 
@@ -118,23 +132,30 @@ def register_pinhole_sensor(mi) -> None:
                 1.0,
             )
 
-        def _ray(self, time, wavelength_sample, position_sample, active):
+        def _ray(self, time, wavelength_sample, position_sample, active, aperture_sample=None):
             wavelengths, weight = self.sample_wavelengths(dr.zeros(mi.SurfaceInteraction3f), wavelength_sample, active)
             p = self._local(position_sample)  # on the plane z = 1
-            d = dr.normalize(p)
+            if self._lens:
+                disk = mi.warp.square_to_uniform_disk_concentric(aperture_sample) * self._aperture
+                pupil = mi.Point3f(disk.x, disk.y, 0.0)
+                d = dr.normalize(mi.Vector3f(p * self._focus - mi.Vector3f(pupil)))  # a direction, not a point
+                start = self.to_world @ pupil
+            else:
+                d = dr.normalize(p)
+                start = self.to_world.translation()
             inv_z = dr.rcp(d.z)
             near_t, far_t = self._near * inv_z, self._far * inv_z
             dw = self.to_world @ d
-            o = self.to_world.translation() + dw * near_t
+            o = start + dw * near_t
             ray = mi.RayDifferential3f(mi.Ray3f(o, dw, far_t - near_t, time, wavelengths))
             return ray, p, weight
 
         def sample_ray(self, time, sample1, sample2, sample3, active=True):
-            ray, _, weight = self._ray(time, sample1, sample2, active)
+            ray, _, weight = self._ray(time, sample1, sample2, active, sample3)
             return mi.Ray3f(ray), weight
 
         def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
-            ray, p, weight = self._ray(time, sample1, sample2, active)
+            ray, p, weight = self._ray(time, sample1, sample2, active, sample3)
             ray.o_x = ray.o
             ray.o_y = ray.o
             ray.d_x = self.to_world @ dr.normalize(p + self._dx)
