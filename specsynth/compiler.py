@@ -74,10 +74,12 @@ def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
         problems.append(loaded.locate("intrinsics.width", f"a {spec.intrinsics.width} x {spec.intrinsics.height} image "
                                       f"needs about {need / (1 << 30):.1f} GiB per worker ({BYTES_PER_PIXEL} B/pixel), over "
                                       f"the limit of {max_bytes / (1 << 30):.1f} GiB (set SPECSYNTH_MAX_WORKER_GB to raise it)"))
-    if spec.cameras.depth_of_field is not None and not backend_plugin(spec.backend.name).capabilities.depth_of_field:
-        problems.append(loaded.locate("cameras.depth_of_field", f"backend {spec.backend.name!r} cannot render depth of "
-                                      "field (its plugin does not declare it); remove depth_of_field or use one that does "
-                                      "(`specsynth backends`)"))
+    caps = backend_plugin(spec.backend.name).capabilities
+    for name, what in (("depth_of_field", "depth of field"), ("motion_blur", "motion blur")):
+        if getattr(spec.cameras, name) is not None and not getattr(caps, name):
+            problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
+                                          f"plugin does not declare it); remove {name} or use one that does "
+                                          "(`specsynth backends`)"))
     if spec.intrinsics.distortion:
         for name in ("normals", "nocs"):
             if getattr(spec.outputs, name):

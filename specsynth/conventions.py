@@ -87,3 +87,26 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
         [-sp, cp * sr, cp * cr],
     ])
+
+
+def rotation_vector_matrix(r) -> np.ndarray:
+    """Rodrigues: the rotation by angle |r| (radians) about the axis r / |r|."""
+    r = np.asarray(r, dtype=np.float64)
+    theta = float(np.linalg.norm(r))
+    if theta < 1e-15:
+        return np.eye(3)
+    k = r / theta
+    Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(theta) * Kx + (1.0 - math.cos(theta)) * (Kx @ Kx)
+
+
+def c2w_during_exposure(T_c2w: np.ndarray, motion, s: float) -> np.ndarray:
+    """Camera-to-world (OpenCV camera) at exposure fraction ``s`` in [-1/2, 1/2] of a camera whose
+    mid-exposure pose is ``T_c2w`` and which travels ``motion[:3]`` metres and turns by the rotation
+    vector ``motion[3:]`` (its own frame at mid-exposure) from shutter open to close."""
+    if not motion:
+        return np.asarray(T_c2w, dtype=np.float64)
+    delta = np.eye(4)
+    delta[:3, :3] = rotation_vector_matrix(s * np.asarray(motion[3:6], dtype=np.float64))
+    delta[:3, 3] = s * np.asarray(motion[:3], dtype=np.float64)
+    return np.asarray(T_c2w, dtype=np.float64) @ delta

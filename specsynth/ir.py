@@ -168,6 +168,10 @@ class CameraIR:
     far: float = 100.0
     aperture: float = 0.0  # thin-lens aperture diameter, metres (0: pinhole)
     focus_distance: float = 0.0  # metres along the optical axis to the plane in focus
+    # Camera motion over the exposure, in the OpenCV camera frame at mid-exposure: (tx, ty, tz)
+    # metres of travel and (rx, ry, rz) a rotation vector (radians), from shutter open to close.
+    # At exposure fraction s in [-1/2, 1/2]: x_world = T_c2w (Exp(s r) x_cam + s t). () = still.
+    motion: tuple[float, ...] = ()
 
     def translated(self, offset) -> "CameraIR":
         """The same view of a scene moved by ``-offset``: ``t' = t + R @ offset``."""

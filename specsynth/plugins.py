@@ -32,6 +32,7 @@ class Capabilities:
     denoise: bool = False  # has a denoiser; False also for renderers without sampling noise
     gpu: bool = False
     depth_of_field: bool = False  # renders CameraIR.aperture / focus_distance (a thin lens)
+    motion_blur: bool = False  # renders CameraIR.motion (the camera moving during the exposure)
     material_channels: frozenset[str] = frozenset({"base_color"})
     quality: str = ""  # one line: how the paper's presets map onto this renderer
 

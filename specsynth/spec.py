@@ -328,6 +328,23 @@ class DepthOfField(Strict):
         return v
 
 
+class MotionBlur(Strict):
+    """The camera moving during the exposure, drawn per image: a random direction of travel and
+    axis of turn. Masks and boxes are the sharp geometry at mid-exposure (the record's pose)."""
+
+    shutter: float = Field(1.0 / 30.0, gt=0, le=10, description="Exposure time, seconds.")
+    speed: FloatRange(0.0, 100.0) = Field((0.0, 0.5), description="Camera speed, metres per second, drawn per "
+                                          "image (a hand-held camera: up to ~0.5).")
+    rotation: FloatRange(0.0, 3600.0) = Field((0.0, 20.0), description="Camera turn rate, degrees per second, drawn "
+                                              "per image about a random axis.")
+
+    @model_validator(mode="after")
+    def _moves(self):
+        if self.speed[1] <= 0 and self.rotation[1] <= 0:
+            raise ValueError("motion_blur with no speed and no rotation blurs nothing; give a range above 0 or remove it")
+        return self
+
+
 class Cameras(Strict):
     per_arrangement: int = Field(5, ge=1, le=100_000, description="Cameras per arrangement.")
     azimuth: FloatRange(-720, 720) = Field((0.0, 360.0), description="Azimuth around the focused object, degrees.")
@@ -338,6 +355,8 @@ class Cameras(Strict):
     depth_of_field: DepthOfField | None = Field(
         None, description="Defocus blur: a thin lens focused on the focused object. Masks and boxes stay those of "
         "the sharp geometry (the pinhole through the lens centre).")
+    motion_blur: MotionBlur | None = Field(
+        None, description="Camera motion during the exposure (a random translation and turn per image).")
     clearance: float = Field(
         0.05, ge=0, le=10,
         description="Metres of free space a camera needs around it (nearest surface along the six axes); "

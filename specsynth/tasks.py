@@ -436,6 +436,8 @@ class Worker:
             cam_r = lens.render_camera(cam, warp) if warp else cam
             if spec.cameras.depth_of_field is not None:
                 cam_r = self._focused(cam_r, scene, view.focus_inst, job)
+            if spec.cameras.motion_blur is not None:
+                cam_r = replace(cam_r, motion=camera_motion(spec.cameras.motion_blur, seeds.job_seed(spec.seed, f"{job.id}/motion")))
             t1 = time.perf_counter()
             res = backend.render(cam_r, preset, job.seed, clamp=spec.quality.clamp)
             seconds = time.perf_counter() - t1
@@ -479,6 +481,15 @@ def render_phases(backend_phases: dict | None, render_seconds: float, **core: fl
     phases["render.other"] = max(0.0, render_seconds - sum(phases.values()))
     phases.update({k: float(v) for k, v in core.items()})
     return {k: round(v, 5) for k, v in phases.items()}
+
+
+def camera_motion(blur, seed: int) -> tuple[float, ...]:
+    """One image's camera motion over the exposure (CameraIR.motion): a direction of travel and an
+    axis of turn uniform on the sphere, speed and rate uniform in the spec's ranges."""
+    rng = np.random.default_rng(seed)
+    direction, axis = (v / np.linalg.norm(v) for v in rng.standard_normal((2, 3)))
+    speed, rate = float(rng.uniform(*blur.speed)), np.radians(float(rng.uniform(*blur.rotation)))
+    return tuple(float(x) for x in (*(direction * speed * blur.shutter), *(axis * rate * blur.shutter)))
 
 
 def through_lens(res: RenderResult, warp) -> RenderResult:

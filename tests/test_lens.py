@@ -179,3 +179,35 @@ def test_depth_of_field_errors_are_located(tmp_path):
     with pytest.raises(SpecError, match="cameras.depth_of_field.*'photo' cannot render depth of field"):
         compile_spec(load_spec(f))
     compile_spec(load_spec(f, ["backend={name: cycles}"]))  # a backend that can: fine
+
+
+def test_motion_blur_errors_are_located(tmp_path):
+    f = tmp_path / "s.yaml"
+    base = SPEC.replace("BACKGROUNDS", "builtin").replace(",\n             distortion: [-0.25, 0.08, 0.002, -0.001, 0.0]}", "}")
+    f.write_text(base.replace("distance: [0.25, 0.35]}", "distance: [0.25, 0.35],\n          motion_blur: {speed: [0, 0], rotation: [0, 0]}}"))
+    with pytest.raises(SpecError, match=r"s.yaml:8:.*cameras.motion_blur.*blurs nothing"):
+        load_spec(f)
+    f.write_text(base.replace("distance: [0.25, 0.35]}", "distance: [0.25, 0.35],\n          motion_blur: {shutter: 0.02}}"))
+    with pytest.raises(SpecError, match="cameras.motion_blur.*'photo' cannot render motion blur"):
+        compile_spec(load_spec(f))
+    compile_spec(load_spec(f, ["backend={name: mitsuba}"]))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.tuples(*[st.floats(-0.2, 0.2)] * 6), st.tuples(*[st.floats(-3, 3)] * 3))
+def test_exposure_poses_run_around_the_mid_pose(motion, rvec):
+    """c2w_during_exposure: the mid-exposure pose is the record's; open and close are rigid and
+    the camera turns by exactly the rotation vector between them (in its own frame)."""
+    from specsynth.conventions import c2w_during_exposure, rotation_vector_matrix
+
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rotation_vector_matrix(rvec), (0.3, -1.0, 2.0)
+    assert np.allclose(c2w_during_exposure(T, motion, 0.0), T)
+    open_, close = c2w_during_exposure(T, motion, -0.5), c2w_during_exposure(T, motion, 0.5)
+    for M in (open_, close):
+        assert np.allclose(M[:3, :3].T @ M[:3, :3], np.eye(3), atol=1e-9) and np.linalg.det(M[:3, :3]) > 0
+    assert np.allclose(open_[:3, :3].T @ close[:3, :3], rotation_vector_matrix(motion[3:]), atol=1e-9)
+    if not any(motion[3:]):
+        assert np.allclose(close[:3, 3] - open_[:3, 3], T[:3, :3] @ np.asarray(motion[:3]), atol=1e-12)
+    want, _ = cv2.Rodrigues(np.asarray(rvec, np.float64))
+    assert np.allclose(rotation_vector_matrix(rvec), want, atol=1e-9)

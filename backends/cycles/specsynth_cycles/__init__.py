@@ -13,7 +13,7 @@ PLUGIN = BackendPlugin(
     options=CyclesOptions,
     backend="specsynth_cycles.backend:CyclesBackend",
     capabilities=Capabilities(
-        draws_scene=True, denoise=True, gpu=False, depth_of_field=True,
+        draws_scene=True, denoise=True, gpu=False, depth_of_field=True, motion_blur=True,
         material_channels=frozenset({"base_color", "roughness", "metallic", "normal", "emission", "opacity"}),
         quality="samples = max(AA, diffuse rays, specular rays); bounce limits from the preset's depths",
     ),

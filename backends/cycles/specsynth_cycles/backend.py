@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from specsynth.colour import check_finite, linear_to_srgb8
-from specsynth.conventions import opencv_to_blender_c2w
+from specsynth.conventions import c2w_during_exposure, opencv_to_blender_c2w
 from specsynth.ir import CameraIR, RenderResult, RenderScene
 from specsynth.spec import QualityPreset
 
@@ -239,6 +239,40 @@ class CyclesBackend:
         r.resolution_x, r.resolution_y = int(camera.width), int(camera.height)
         r.pixel_aspect_x, r.pixel_aspect_y = bi.pixel_aspect_x, bi.pixel_aspect_y
         self._cam_obj.matrix_world = Matrix(opencv_to_blender_c2w(camera.T_c2w).tolist())
+        self._set_motion(camera)
+
+    def _set_motion(self, camera: CameraIR) -> None:
+        """Camera motion blur: the camera keyed at shutter open, mid-exposure and close, half a frame
+        either side of the current one (Cycles' shutter of one frame, centred), linearly; still
+        cameras carry no animation at all."""
+        from mathutils import Matrix
+
+        sc, ob = self._bpy.context.scene, self._cam_obj
+        if not camera.motion:
+            if sc.render.use_motion_blur or ob.animation_data is not None:
+                sc.render.use_motion_blur = False
+                ob.animation_data_clear()
+                ob.matrix_world = Matrix(opencv_to_blender_c2w(camera.T_c2w).tolist())
+            return
+        sc.render.use_motion_blur = True
+        sc.render.motion_blur_shutter = 1.0
+        sc.render.motion_blur_position = "CENTER"
+        ob.animation_data_clear()
+        ob.rotation_mode = "QUATERNION"
+        prefs = self._bpy.context.preferences.edit
+        before, prefs.keyframe_new_interpolation_type = prefs.keyframe_new_interpolation_type, "LINEAR"
+        try:
+            f, previous = sc.frame_current, None
+            for s in (-0.5, 0.0, 0.5):
+                ob.matrix_world = Matrix(opencv_to_blender_c2w(c2w_during_exposure(camera.T_c2w, camera.motion, s)).tolist())
+                if previous is not None and previous.dot(ob.rotation_quaternion) < 0:
+                    ob.rotation_quaternion = -ob.rotation_quaternion  # the short way round
+                previous = ob.rotation_quaternion.copy()
+                ob.keyframe_insert("location", frame=f + s)
+                ob.keyframe_insert("rotation_quaternion", frame=f + s)
+        finally:
+            prefs.keyframe_new_interpolation_type = before
+        sc.frame_set(f)
 
     def _apply(self, ps: PathSettings, seed: int) -> None:
         cy = self._bpy.context.scene.cycles

@@ -202,14 +202,14 @@ class MitsubaBackend:
 
     def _sensor_for(self, camera: CameraIR, st: mapping.IntegratorSettings):
         sset = mapping.sensor_settings(camera.K_array, camera.width, camera.height)
-        lens = camera.aperture > 0
-        key = (camera.K, camera.width, camera.height, camera.near, camera.far, st.sampler, st.spp, lens)
+        lens, moving = camera.aperture > 0, bool(camera.motion)
+        key = (camera.K, camera.width, camera.height, camera.near, camera.far, st.sampler, st.spp, lens, moving)
         if key != self._sensor_key:
             mi = self._mi
-            if lens and not self._dr.is_jit_v(mi.Float):
-                raise ValueError("mitsuba: depth of field needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb); "
-                                 f"this one is {self.variant}")
-            if lens or self._use_k_sensor(sset):
+            if (lens or moving) and not self._dr.is_jit_v(mi.Float):
+                raise ValueError("mitsuba: depth of field and motion blur need a JIT variant (llvm_ad_rgb or "
+                                 f"cuda_ad_rgb); this one is {self.variant}")
+            if lens or moving or self._use_k_sensor(sset):
                 K = camera.K_array
                 # exact for any upper-triangular K; same to_world frame, clip and children
                 optics = {
@@ -220,6 +220,7 @@ class MitsubaBackend:
                     "cy": float(K[1, 2]),
                     "skew": float(K[0, 1]),
                     **({"aperture_radius": camera.aperture / 2.0, "focus_distance": camera.focus_distance} if lens else {}),
+                    **({"shutter_open": 0.0, "shutter_close": 1.0} if moving else {}),
                 }
             else:
                 # Mitsuba's own (C++) sensor when pixels are square: exact there, no Python in the loop
@@ -261,6 +262,10 @@ class MitsubaBackend:
         if camera.aperture > 0:
             self._sensor_params["aperture_radius"] = camera.aperture / 2.0
             self._sensor_params["focus_distance"] = camera.focus_distance
+        if camera.motion:  # OpenCV camera frame -> Mitsuba's local (x and y flipped: a turn about z)
+            t, r = camera.motion[:3], camera.motion[3:6]
+            self._sensor_params["motion_translation"] = self._mi.Vector3f(-t[0], -t[1], t[2])
+            self._sensor_params["motion_rotation"] = self._mi.Vector3f(-r[0], -r[1], r[2])
         self._sensor_params.update()
 
 

@@ -23,7 +23,10 @@ for the sample (sx, sy) in [0, 1]^2 relative to the film's crop window.
 With ``aperture_radius`` > 0 it is a thin lens: the ray leaves a point of the pupil disk (the
 third sample, mapped concentrically) towards the point the pinhole ray meets at ``focus_distance``
 along the axis, so that plane stays sharp. Both are traversable and opaque (a new focus per image
-compiles nothing); whether there is a lens at all is fixed when the sensor is made.
+compiles nothing); whether there is a lens at all is fixed when the sensor is made. Likewise
+``motion_translation`` / ``motion_rotation`` (Mitsuba-local, from shutter open to close): with
+``shutter_close`` > 0 the ray's time t in [0, 1] moves and turns the camera by (t - 1/2) of them
+about its mid-exposure pose (``specsynth.conventions.c2w_during_exposure``).
 
 Like ``textures.py``, the class must derive from the *active variant's* ``mi.Sensor``, so it is
 made (and registered with Mitsuba's plugin registry) after ``mi.set_variant``.
@@ -84,6 +87,9 @@ def register_pinhole_sensor(mi) -> None:
             # drjit values (traverse can only hand out those), set here once and updated in place
             self._aperture = mi.Float(radius)
             self._focus = mi.Float(float(props.get("focus_distance", 1.0)))
+            self._moving = float(props.get("shutter_close", 0.0)) > 0
+            self._travel = mi.Vector3f(*(float(props.get(f"motion_t{a}", 0.0)) for a in "xyz"))
+            self._turn = mi.Vector3f(*(float(props.get(f"motion_r{a}", 0.0)) for a in "xyz"))
             # without a lens the sampler draws what it draws for perspective
             self.m_needs_sample_3 = self._lens
             self._update()
@@ -104,7 +110,8 @@ def register_pinhole_sensor(mi) -> None:
             self._near = mi.Float(self.near_clip)
             self._far = mi.Float(self.far_clip)
             # Opaque: kernel inputs rather than literals, so new values never recompile a kernel.
-            dr.make_opaque(self.to_world, self._coef, self._dx, self._dy, self._near, self._far, self._aperture, self._focus)
+            dr.make_opaque(self.to_world, self._coef, self._dx, self._dy, self._near, self._far, self._aperture, self._focus,
+                           self._travel, self._turn)
             self.m_to_world = self.to_world  # mirrored for C++ callers of world_transform()
 
         def traverse(self, callback):
@@ -112,6 +119,9 @@ def register_pinhole_sensor(mi) -> None:
             if self._lens:
                 callback.put("aperture_radius", self._aperture, mi.ParamFlags.NonDifferentiable)
                 callback.put("focus_distance", self._focus, mi.ParamFlags.NonDifferentiable)
+            if self._moving:
+                callback.put("motion_translation", self._travel, mi.ParamFlags.NonDifferentiable)
+                callback.put("motion_rotation", self._turn, mi.ParamFlags.NonDifferentiable)
             callback.put("film", self.film(), mi.ParamFlags.NonDifferentiable)
             callback.put("sampler", self.sampler(), mi.ParamFlags.NonDifferentiable)
 
@@ -137,18 +147,30 @@ def register_pinhole_sensor(mi) -> None:
             p = self._local(position_sample)  # on the plane z = 1
             if self._lens:
                 disk = mi.warp.square_to_uniform_disk_concentric(aperture_sample) * self._aperture
-                pupil = mi.Point3f(disk.x, disk.y, 0.0)
-                d = dr.normalize(mi.Vector3f(p * self._focus - mi.Vector3f(pupil)))  # a direction, not a point
-                start = self.to_world @ pupil
+                pupil = mi.Vector3f(disk.x, disk.y, 0.0)
+                d = dr.normalize(mi.Vector3f(p * self._focus - pupil))
             else:
+                pupil = mi.Vector3f(0.0)
                 d = dr.normalize(p)
-                start = self.to_world.translation()
+            if self._moving:  # the camera's own motion over the exposure, in its local frame
+                s = time - 0.5
+                pupil = self._turned(pupil, s) + self._travel * s
+                d = self._turned(d, s)
+            start = self.to_world @ mi.Point3f(pupil)
             inv_z = dr.rcp(d.z)
             near_t, far_t = self._near * inv_z, self._far * inv_z
             dw = self.to_world @ d
             o = start + dw * near_t
             ray = mi.RayDifferential3f(mi.Ray3f(o, dw, far_t - near_t, time, wavelengths))
             return ray, p, weight
+
+        def _turned(self, v, s):
+            """v rotated by the rotation vector s * motion_rotation (Rodrigues)."""
+            r = self._turn * s
+            theta = dr.norm(r)
+            k = r / dr.maximum(theta, 1e-12)
+            c, sn = dr.cos(theta), dr.sin(theta)
+            return v * c + dr.cross(k, v) * sn + k * dr.dot(k, v) * (1.0 - c)
 
         def sample_ray(self, time, sample1, sample2, sample3, active=True):
             ray, _, weight = self._ray(time, sample1, sample2, active, sample3)
