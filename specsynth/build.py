@@ -447,7 +447,10 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
             summary.objects_redropped += arec["redropped"]
         for r in renders:
             if store.has("render", r.key):
-                images.append((ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)))
+                rec, path = ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)
+                images.append((rec, path))
+                if rec.right_eye is not None:  # a stereo pair: the right eye's files are under right/
+                    images.append((ImageRecord.from_json(rec.right_eye), Path(path) / "right"))
                 credits += arec.get("credits", [])
     summary.images = len(images)
     summary.instances = sum(len(im.instances) for im, _ in images)

@@ -125,6 +125,9 @@ class ImageRecord:
     albedo_file: str | None = None  # 8-bit sRGB PNG, unlit diffuse colour
     depth_noisy_file: str | None = None  # uint16 PNG like depth_file: the RGB-D sensor model's depth
     distortion: list[float] | None = None  # OpenCV [k1, k2, p1, p2, k3] the image was warped with
+    eye: str | None = None  # "left" / "right" in a stereo build (the left camera is the view's)
+    baseline: float | None = None  # metres between the eyes, along the left camera's +x
+    right_eye: dict[str, Any] | None = None  # the right eye's record (files under right/), on the left's
     render_seconds: float = 0.0
     stats: dict[str, Any] = field(default_factory=dict)
 

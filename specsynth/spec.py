@@ -345,6 +345,14 @@ class MotionBlur(Strict):
         return self
 
 
+class Stereo(Strict):
+    """A stereo rig: every view also rendered from a right camera, the left moved by ``baseline``
+    along its own +x (same orientation, intrinsics, seed, lens and motion)."""
+
+    baseline: float = Field(0.065, gt=0, le=10, description="Distance between the eyes, metres (human ~0.065; "
+                            "RealSense D435 0.05).")
+
+
 class Cameras(Strict):
     per_arrangement: int = Field(5, ge=1, le=100_000, description="Cameras per arrangement.")
     azimuth: FloatRange(-720, 720) = Field((0.0, 360.0), description="Azimuth around the focused object, degrees.")
@@ -355,6 +363,9 @@ class Cameras(Strict):
     depth_of_field: DepthOfField | None = Field(
         None, description="Defocus blur: a thin lens focused on the focused object. Masks and boxes stay those of "
         "the sharp geometry (the pinhole through the lens centre).")
+    stereo: Stereo | None = Field(
+        None, description="Render every view as a left/right pair; the right eye is written as the split "
+        "'<split>_right' (BOP, COCO) and parquet/*_right.parquet, with the same image ids and its own annotations.")
     motion_blur: MotionBlur | None = Field(
         None, description="Camera motion during the exposure (a random translation and turn per image).")
     clearance: float = Field(

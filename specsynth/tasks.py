@@ -416,6 +416,41 @@ class Worker:
                     mask_visib_files=masks_visib, exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file,
                     depth_noisy_file=depth_noisy_file, albedo_file=albedo_file)
 
+    def _render_eye(self, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: "_Render", load_phase: float) -> ImageRecord:
+        """One camera's image of the arrangement, its files written into ``wd``: render, annotate,
+        lens and sensor, outputs; -> its record (both eyes of a stereo rig share the job's seed)."""
+        spec, warp = self.spec, self.lens_warp()
+        cam = self.camera(view.R_w2c, t_w2c, ctx.origin)
+        cam_r = lens.render_camera(cam, warp) if warp else cam
+        if spec.cameras.depth_of_field is not None:
+            cam_r = self._focused(cam_r, ctx.scene, view.focus_inst, job)
+        if spec.cameras.motion_blur is not None:
+            cam_r = replace(cam_r, motion=camera_motion(spec.cameras.motion_blur, seeds.job_seed(spec.seed, f"{job.id}/motion")))
+        t1 = time.perf_counter()
+        res = ctx.backend.render(cam_r, ctx.preset, job.seed, clamp=spec.quality.clamp)
+        seconds = time.perf_counter() - t1
+        if res.linear is not None:
+            check_finite(res.linear, f"{spec.backend.name} render of {job.id}")
+        t2 = time.perf_counter()
+        if warp:
+            ann = ctx.annot.annotate_lens(cam, warp, spec.intrinsics.distortion, spec.visibility.delta, ctx.occluders)
+            res = through_lens(res, warp)
+        else:
+            ann = ctx.annot.annotate(cam, spec.visibility.delta, ctx.occluders)
+        t3 = time.perf_counter()
+        files = self._write_image(wd, job, res, ann, cam, cam_r, ctx.arrange_key, ctx.scene)
+        stats = dict(res.stats)
+        stats["load_seconds"] = ctx.load_seconds
+        stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,
+                                        annotate=t3 - t2, encode=time.perf_counter() - t3)
+        return ImageRecord(
+            arr=job.arr, cam=job.cam, index=view.index, scene=ctx.arr.scene, stage=ctx.arr.stage,
+            backend=spec.backend.name, backend_version=ctx.backend.version(), quality=spec.quality.level,
+            seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
+            R_w2c=view.R_w2c, t_w2c=list(t_w2c), instances=ann.instances, render_seconds=seconds, stats=stats,
+            **files, distortion=list(spec.intrinsics.distortion) if warp else None,
+        )
+
     def run_renders(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
         spec = self.spec
         arr = ArrangementRecord.from_json(self.store.load("arrange", arrange_key))
@@ -426,51 +461,42 @@ class Worker:
         load_phase = load_seconds
         occluders = "scene" if self._draws_scene else "objects"
         preset = spec.quality.resolved()
-        warp = self.lens_warp()
         out = []
         for view_job, job in pairs:
             if self.store.has("render", job.key):  # finished before a retry
                 continue
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
-            cam = self.camera(view.R_w2c, view.t_w2c, origin)
-            cam_r = lens.render_camera(cam, warp) if warp else cam
-            if spec.cameras.depth_of_field is not None:
-                cam_r = self._focused(cam_r, scene, view.focus_inst, job)
-            if spec.cameras.motion_blur is not None:
-                cam_r = replace(cam_r, motion=camera_motion(spec.cameras.motion_blur, seeds.job_seed(spec.seed, f"{job.id}/motion")))
-            t1 = time.perf_counter()
-            res = backend.render(cam_r, preset, job.seed, clamp=spec.quality.clamp)
-            seconds = time.perf_counter() - t1
-            if res.linear is not None:
-                check_finite(res.linear, f"{spec.backend.name} render of {job.id}")
-            t2 = time.perf_counter()
-            if warp:
-                ann = annot.annotate_lens(cam, warp, spec.intrinsics.distortion, spec.visibility.delta, occluders)
-                res = through_lens(res, warp)
-            else:
-                ann = annot.annotate(cam, spec.visibility.delta, occluders)
-            t3 = time.perf_counter()
             wd = self.store.begin()
-            files = self._write_image(wd, job, res, ann, cam, cam_r, arrange_key, scene)
-            t4 = time.perf_counter()
-            stats = dict(res.stats)
-            stats["load_seconds"] = load_seconds
-            stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,
-                                            annotate=t3 - t2, encode=t4 - t3)
-            rec = ImageRecord(
-                arr=job.arr, cam=job.cam, index=view.index, scene=arr.scene, stage=arr.stage,
-                backend=spec.backend.name, backend_version=backend.version(), quality=spec.quality.level,
-                seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
-                R_w2c=view.R_w2c, t_w2c=view.t_w2c, instances=ann.instances, render_seconds=seconds, stats=stats,
-                **files,
-                distortion=list(spec.intrinsics.distortion) if warp else None,
-            )
+            ctx = _Render(arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds)
+            rec = self._render_eye(wd, job, view, view.t_w2c, ctx, load_phase)
+            stereo = spec.cameras.stereo
+            if stereo is not None:  # the right eye: the rig moved by the baseline along the camera's x
+                t_right = (np.asarray(view.t_w2c, np.float64) - [stereo.baseline, 0.0, 0.0]).tolist()
+                (wd / "right").mkdir()
+                right = self._render_eye(wd / "right", job, view, t_right, ctx, 0.0)
+                rec = replace(rec, eye="left", baseline=stereo.baseline,
+                              right_eye=replace(right, eye="right", baseline=stereo.baseline).to_json())
             t5 = time.perf_counter()
             self.store.commit("render", job.key, wd, rec.to_json())
-            out.append({"id": job.id, "seconds": seconds,
-                        "phases": {**stats["phases"], "write": round(time.perf_counter() - t5, 5)}})
+            out.append({"id": job.id, "seconds": rec.render_seconds,
+                        "phases": {**rec.stats["phases"], "write": round(time.perf_counter() - t5, 5)}})
             load_phase = 0.0  # the scene load is paid by the first render of the call
         return out
+
+
+@dataclass(frozen=True)
+class _Render:
+    """What every image of one render call shares."""
+
+    arr: ArrangementRecord
+    scene: RenderScene
+    origin: Any
+    arrange_key: str
+    backend: Any
+    annot: Any
+    occluders: str
+    preset: Any
+    load_seconds: float
 
 
 def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:

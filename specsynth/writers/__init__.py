@@ -22,23 +22,31 @@ __all__ = ["write_outputs", "write_bop", "write_coco", "write_parquet"]
 def write_outputs(
     out: Path, spec: DatasetSpec, images: Sequence[ImageEntry], models: Sequence[ObjectAsset]
 ) -> dict[str, int]:
-    """Write every output the spec enables into ``out``; returns counts by name."""
+    """Write every output the spec enables into ``out``; returns counts by name. A stereo build's
+    right eye is a dataset of its own beside the left: split ``<split>_right``, parquet ``*_right``."""
+    right = sorted_images(e for e in images if e[0].eye == "right")
+    counts = _write_eye(Path(out), spec, sorted_images(e for e in images if e[0].eye != "right"), models, spec.split, "")
+    if right:
+        for k, v in _write_eye(Path(out), spec, right, models, f"{spec.split}_right", "_right").items():
+            counts[k] = counts.get(k, 0) + v
+    return counts
+
+
+def _write_eye(out: Path, spec: DatasetSpec, images, models, split: str, suffix: str) -> dict[str, int]:
     o = spec.outputs
-    out = Path(out)
-    images = sorted_images(images)
     # Visible-mask RLEs feed three files; decode each mask PNG once.
     rles = all_visible_rles(images) if (o.coco or o.parquet) else None
     counts: dict[str, int] = {"images": len(images), "instances": sum(len(r.instances) for r, _ in images)}
     if o.bop:
         counts |= write_bop(
-            out, spec.split, images, models, spec.intrinsics, o, coco=o.coco, rles=rles, dataset_name=spec.name,
+            out, split, images, models, spec.intrinsics, o, coco=o.coco, rles=rles, dataset_name=spec.name,
             meta=spec.metadata,
         )
     if o.parquet:
-        counts |= write_parquet(out, spec.split, images, o.chunk_size, bop_layout=o.bop, rles=rles)
+        counts |= write_parquet(out, split, images, o.chunk_size, bop_layout=o.bop, rles=rles, suffix=suffix)
     if o.coco:
         counts |= write_coco(
-            out, spec.split, images, models, o.chunk_size, bop_layout=o.bop, rles=rles, dataset_name=spec.name,
+            out, split, images, models, o.chunk_size, bop_layout=o.bop, rles=rles, dataset_name=spec.name,
             meta=spec.metadata,
         )
     return counts

@@ -117,6 +117,8 @@ def scene_camera_entry(rec: ImageRecord) -> dict[str, Any]:
     }
     if rec.distortion:  # OpenCV's order, as cv2.projectPoints(..., cam_K, cam_dist) takes it
         entry["cam_dist"] = [float(c) for c in rec.distortion]
+    if rec.eye is not None:  # the same im_id in '<split>' (left) and '<split>_right' is one pair
+        entry["stereo"] = {"eye": rec.eye, "baseline_mm": float(rec.baseline) * 1000.0}
     return entry
 
 

@@ -126,8 +126,10 @@ def write_parquet(
     *,
     bop_layout: bool = True,
     rles: dict[int, list] | None = None,
+    suffix: str = "",
 ) -> dict[str, int]:
-    """Write the three tables; paths are relative to ``out`` (into ``bop/`` when it is written)."""
+    """Write the three tables (``images<suffix>.parquet``, ...); paths are relative to ``out`` (into
+    ``bop/`` when it is written)."""
     out = Path(out)
     image_rows, inst_rows, timing_rows = [], [], []
     for rec, store in sorted_images(images):
@@ -172,7 +174,7 @@ def write_parquet(
             )
 
     folder = out / "parquet"
-    write_if_changed(folder / "images.parquet", table_bytes(_table(image_rows, IMAGES_SCHEMA)))
-    write_if_changed(folder / "instances.parquet", table_bytes(_table(inst_rows, INSTANCES_SCHEMA)))
-    write_if_changed(folder / "timings.parquet", table_bytes(_table(timing_rows, TIMINGS_SCHEMA)))
+    write_if_changed(folder / f"images{suffix}.parquet", table_bytes(_table(image_rows, IMAGES_SCHEMA)))
+    write_if_changed(folder / f"instances{suffix}.parquet", table_bytes(_table(inst_rows, INSTANCES_SCHEMA)))
+    write_if_changed(folder / f"timings{suffix}.parquet", table_bytes(_table(timing_rows, TIMINGS_SCHEMA)))
     return {"parquet_images": len(image_rows), "parquet_instances": len(inst_rows)}
