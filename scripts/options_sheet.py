@@ -2,9 +2,10 @@
 
     .venv/bin/python scripts/options_sheet.py --out docs/images/options.jpg
 
-One view of the `kitchen` scene built three times with Cycles (plain, with a `sensor:` block, and
-through a distorting lens) and every extra output on: RGB, sensor RGB, albedo, normals, NOCS,
-depth, sensor depth, and the lens's RGB with its visible masks' outlines.
+One view of the `kitchen` scene built with Cycles plain and with each camera option: every extra
+output (RGB, albedo, normals, NOCS, depth), a `sensor:` block (noisy RGB and depth), a distorting
+lens (with its visible masks' outlines), depth of field, motion blur, and the right eye of a
+stereo pair.
 """
 
 from __future__ import annotations
@@ -33,7 +34,10 @@ outputs: {image_format: png, normals: true, nocs: true, albedo: true}
 """
 SENSOR = ["sensor={shot_noise: 0.04, read_noise: 0.01, exposure: [0.5, 0.5], white_balance: [4000, 4000], "
           "depth: {axial_noise: [0.002, 0.004], edge_holes: 2, dropout: 0.02}}"]
-LENS = ["intrinsics.distortion=[-0.35, 0.12, 0.0, 0.0, 0.0]", "outputs.normals=false", "outputs.nocs=false"]
+LENS = ["intrinsics.distortion=[-0.35, 0.12, 0.0, 0.0, 0.0]"]
+DOF = ["cameras.depth_of_field={aperture: [30, 30]}", "backend.samples=16"]
+MOTION = ["cameras.motion_blur={shutter: 0.05, speed: [0.5, 0.5], rotation: [5, 5]}", "backend.samples=16"]
+STEREO = ["cameras.stereo={baseline: 0.1}"]
 
 
 def _outlined(rgb: np.ndarray, chunk: Path) -> np.ndarray:
@@ -65,8 +69,10 @@ def main() -> None:
         spec.write_text(SPEC)
         build(compile_spec(load_spec(spec)), Path(tmp) / "plain", jobs=1)
         build(compile_spec(load_spec(spec, SENSOR)), Path(tmp) / "sensor", jobs=1)
-        build(compile_spec(load_spec(spec, LENS)), Path(tmp) / "lens", jobs=1)
-        c, s, ln = (Path(tmp) / d / "bop" / "train_pbr" / "000000" for d in ("plain", "sensor", "lens"))
+        for name, overrides in (("lens", LENS), ("dof", DOF), ("motion", MOTION), ("stereo", STEREO)):
+            build(compile_spec(load_spec(spec, overrides)), Path(tmp) / name, jobs=1)
+        c, s, ln, df, mo = (Path(tmp) / d / "bop" / "train_pbr" / "000000" for d in ("plain", "sensor", "lens", "dof", "motion"))
+        right = Path(tmp) / "stereo" / "bop" / "train_pbr_right" / "000000"
         n = _exr(c / "normals" / "000000.exr")
         depth = np.asarray(Image.open(c / "depth" / "000000.png"), np.float64)
         tiles = [
@@ -78,9 +84,12 @@ def main() -> None:
             ("depth", _grey(depth, depth.max())),
             ("sensor depth", _grey(np.asarray(Image.open(s / "depth_noisy" / "000000.png"), np.float64), depth.max())),
             ("lens k1 -0.35 k2 0.12, masks", _outlined(np.asarray(Image.open(ln / "rgb" / "000000.png")), ln)),
+            ("depth of field, 30 mm pupil, 16 spp", np.asarray(Image.open(df / "rgb" / "000000.png"))),
+            ("motion blur 0.5 m/s, 5 deg/s, 1/20 s, 16 spp", np.asarray(Image.open(mo / "rgb" / "000000.png"))),
+            ("stereo: right eye, 10 cm", np.asarray(Image.open(right / "rgb" / "000000.png"))),
         ]
     w, h = tiles[0][1].shape[1], tiles[0][1].shape[0]
-    cols = 4
+    cols = 4  # 12 tiles: 3 rows
     sheet = Image.new("RGB", (cols * w, -(-len(tiles) // cols) * h), (20, 20, 20))
     for k, (label, img) in enumerate(tiles):
         im = Image.fromarray(np.ascontiguousarray(img[..., :3]))

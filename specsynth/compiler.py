@@ -59,8 +59,8 @@ def _limit(env: str, default: float) -> float:
 
 
 def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
-    """Located problems the spec alone shows: a plan or an image too large to build on purpose, outputs
-    a lens cannot give yet."""
+    """Located problems the spec alone shows: a plan or an image too large to build on purpose, a
+    camera effect the backend cannot render."""
     problems = []
     images = spec.arrangements.count * spec.cameras.per_arrangement
     max_images = _limit("SPECSYNTH_MAX_IMAGES", MAX_IMAGES)
@@ -80,11 +80,6 @@ def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
             problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
                                           f"plugin does not declare it); remove {name} or use one that does "
                                           "(`specsynth backends`)"))
-    if spec.intrinsics.distortion:
-        for name in ("normals", "nocs"):
-            if getattr(spec.outputs, name):
-                problems.append(loaded.locate(f"outputs.{name}", f"{name} maps are not written through lens "
-                                              "distortion yet (intrinsics.distortion is set); turn one of them off"))
     return problems
 
 

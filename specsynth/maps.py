@@ -12,8 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 
-def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """HxWx3 camera-frame points of a z-depth map (metres); 0 where the depth is 0."""
+def backproject(depth: np.ndarray, K: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
+    """HxWx3 camera-frame points of a z-depth map (metres); 0 where the depth is 0. ``rays``
+    (HxWx2 normalised x/z, y/z per pixel) replace K for an image seen through lens distortion."""
+    if rays is not None:
+        z = depth.astype(np.float64)
+        return np.stack([rays[..., 0] * z, rays[..., 1] * z, z], axis=-1)
     h, w = depth.shape
     K = np.asarray(K, dtype=np.float64)
     u = np.arange(w, dtype=np.float64)[None, :]
@@ -24,12 +28,12 @@ def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=-1)
 
 
-def normals_from_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+def normals_from_depth(depth: np.ndarray, K: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
     """HxWx3 unit surface normals in the camera frame, facing the camera; 0 where no depth.
 
     Tangents are differences to the neighbour whose depth is closer (left or right, up or down),
     so a pixel on an object's edge takes its slope from its own surface, not across the jump."""
-    p = backproject(depth, K)
+    p = backproject(depth, K, rays)
     valid = depth > 0
 
     def tangent(axis: int) -> np.ndarray:
@@ -54,10 +58,10 @@ def normals_from_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def nocs_map(depth: np.ndarray, K: np.ndarray, masks_visib: list[np.ndarray], poses: list[tuple],
-             diagonals: list[float]) -> np.ndarray:
+             diagonals: list[float], rays: np.ndarray | None = None) -> np.ndarray:
     """HxWx3 NOCS of the visible pixels of each instance (0 elsewhere); ``poses`` are
     (R_m2c, t_m2c) in metres, ``diagonals`` the models' bounding-box diagonals in metres."""
-    p = backproject(depth, K)
+    p = backproject(depth, K, rays)
     out = np.zeros(depth.shape + (3,), dtype=np.float32)
     for mask, (R, t), diag in zip(masks_visib, poses, diagonals):
         sel = mask & (depth > 0)

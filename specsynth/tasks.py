@@ -201,16 +201,18 @@ class Worker:
         from .writers.images import write_exr
 
         out = self.spec.outputs
+        warp = self.lens_warp()
+        rays = warp.rays if warp else None  # through a lens, each pixel's own ray instead of K
         normals_file = nocs_file = None
         if out.normals:
             normals_file = "normals.exr"
-            write_exr(wd / normals_file, normals_from_depth(ann.depth, cam.K_array))
+            write_exr(wd / normals_file, normals_from_depth(ann.depth, cam.K_array, rays))
         if out.nocs:
             by_id = {a.obj_id: a for a in self.assets()}
             diagonals = [float(np.linalg.norm(by_id[g.obj_id].extents)) for g in ann.instances]
             poses = [(g.R_m2c, g.t_m2c) for g in ann.instances]
             nocs_file = "nocs.exr"
-            write_exr(wd / nocs_file, nocs_map(ann.depth, cam.K_array, ann.masks_visib, poses, diagonals))
+            write_exr(wd / nocs_file, nocs_map(ann.depth, cam.K_array, ann.masks_visib, poses, diagonals, rays))
         return normals_file, nocs_file
 
     def _swapped_credits(self, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:

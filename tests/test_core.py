@@ -103,3 +103,10 @@ def test_no_core_function_is_over_100_lines():
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 100:
                 long.append(f"{path.relative_to(root)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1})")
     assert not long, long
+
+
+def test_architecture_diagram_is_current():
+    """docs/ARCHITECTURE.md's layer diagram is what scripts/architecture.py generates from the code."""
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, str(root / "scripts" / "architecture.py"), "--check"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
