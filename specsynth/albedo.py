@@ -24,6 +24,7 @@ class AlbedoRenderer:
         self.width, self.height = int(width), int(height)
         self._pr = glutil.pyrender
         self._renderer = self._pr.OffscreenRenderer(self.width, self.height)
+        glutil.draw_in_name_order(self._renderer)
         self._scene = None
         self._meshes: dict[tuple, object] = {}
         self._textures: dict[str, object] = {}

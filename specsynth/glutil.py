@@ -32,10 +32,14 @@ def texture_from_file(path: str) -> pyrender.Texture:
     from PIL import Image
 
     with Image.open(path) as im:
-        img = np.asarray(im.convert("RGB"), dtype=np.uint8)
+        rgb = np.asarray(im.convert("RGB"), dtype=np.uint8)
+    # Four bytes a texel: OpenGL reads texture rows 4-byte aligned and pyrender never says
+    # otherwise, so an RGB texture of odd width (robosuite's 255 px floor tile) was read past its
+    # rows' ends, into memory that differs from run to run (a speckled seam; albedo not repeatable).
+    img = np.concatenate([rgb, np.full(rgb.shape[:2] + (1,), 255, np.uint8)], axis=-1)
     sampler = pyrender.Sampler(magFilter=pyrender.constants.GLTF.LINEAR,
                                minFilter=pyrender.constants.GLTF.LINEAR_MIPMAP_LINEAR)
-    return pyrender.Texture(source=img, source_channels="RGB", sampler=sampler)
+    return pyrender.Texture(source=img, source_channels="RGBA", sampler=sampler)
 
 
 def release_renderer(renderer: pyrender.OffscreenRenderer) -> None:
@@ -81,6 +85,25 @@ def discard_renderer(renderer: pyrender.OffscreenRenderer) -> None:
 
 
 SHADER_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "shaders")
+
+
+def draw_in_name_order(renderer: pyrender.OffscreenRenderer) -> None:
+    """Draw meshes far to near as pyrender does, and meshes at the same distance by node name.
+
+    pyrender breaks ties in the order of a set of nodes, which changes from process to process;
+    coplanar surfaces (a furniture model's parts share one pose) then z-fight differently in every
+    run, and a colour image (albedo, the photo and flat backends) is not the same twice."""
+    inner = renderer._renderer
+
+    def ordered(scene):
+        cam = scene.get_pose(scene.main_camera_node)[:3, 3]
+
+        def key(n):
+            return (-float(np.linalg.norm(scene.get_pose(n)[:3, 3] - cam)), n.name or "")
+        nodes = sorted(scene.mesh_nodes, key=key)
+        return [n for n in nodes if not n.mesh.is_transparent] + [n for n in nodes if n.mesh.is_transparent]
+
+    inner._sorted_mesh_nodes = ordered
 
 
 def use_depth_pass(renderer: pyrender.OffscreenRenderer) -> None:

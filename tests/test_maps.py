@@ -151,3 +151,37 @@ def test_albedo_is_the_unlit_surface_colour(tmp_path):
         for m in masks:
             if m.sum() > 30:  # one flat colour per instance (no light, no shading): small spread
                 assert albedo[m].std(axis=0).max() < 25
+
+
+ODD_TEXTURE_SNIPPET = """
+import hashlib, sys
+import numpy as np
+from PIL import Image
+from specsynth.albedo import AlbedoRenderer
+from specsynth.ir import CameraIR, MaterialIR, MeshInstance, RenderScene, as_tuple
+from specsynth.meshio import MeshData, write_mesh
+d = sys.argv[1]
+Image.fromarray(np.random.default_rng(0).integers(0, 255, (255, 255, 3), dtype=np.uint8)).save(d + "/odd.png")
+quad = MeshData(vertices=np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float),
+                faces=np.array([[0, 1, 2], [0, 2, 3]]), uv=np.array([[0, 0], [3, 0], [3, 3], [0, 3]], float))
+write_mesh(d + "/quad.ply", quad)
+scene = RenderScene(meshes=(MeshInstance("floor", d + "/quad.ply", "quad", as_tuple(np.eye(4)),
+                                         MaterialIR(texture=d + "/odd.png")),), lights=())
+R = np.diag([1.0, -1.0, -1.0])
+cam = CameraIR(K=((60.0, 0, 31.5), (0, 60.0, 23.5), (0, 0, 1.0)), width=64, height=48, R_w2c=as_tuple(R),
+               t_w2c=tuple(-R @ [0.0, 0.0, 1.2]))
+r = AlbedoRenderer(64, 48)
+r.load(scene)
+print(hashlib.sha256(r.render(cam).tobytes()).hexdigest())
+"""
+
+
+def test_albedo_of_an_odd_width_texture_is_the_same_in_every_process(tmp_path):
+    """A 255-px RGB texture (robosuite's floor tile has one) used to be read past its rows' ends
+    (OpenGL's 4-byte row alignment): seams took whatever memory held, different in every run."""
+    import subprocess
+    import sys
+
+    runs = {subprocess.run([sys.executable, "-c", ODD_TEXTURE_SNIPPET, str(tmp_path)], capture_output=True, text=True,
+                           check=True).stdout.strip() for _ in range(3)}
+    assert len(runs) == 1, runs

@@ -22,7 +22,7 @@ from OpenGL.GL import (  # noqa: E402
 from pyrender.renderer import Renderer  # noqa: E402
 
 from specsynth.colour import srgb_to_linear  # noqa: E402
-from specsynth.glutil import KCamera, discard_renderer, release_renderer, texture_from_file  # noqa: E402,F401  (re-exported)
+from specsynth.glutil import KCamera, discard_renderer, draw_in_name_order, release_renderer, texture_from_file  # noqa: E402,F401  (re-exported)
 from specsynth.ir import MaterialIR  # noqa: E402
 from specsynth.meshio import MeshData, read_mesh  # noqa: E402
 
@@ -58,6 +58,7 @@ def new_renderer(width: int, height: int, samples: int) -> pyrender.OffscreenRen
     r = pyrender.OffscreenRenderer(width, height)
     # The Renderer made by OffscreenRenderer has allocated no GL object yet: swap in ours.
     r._renderer = SampledRenderer(width, height, samples)
+    draw_in_name_order(r)
     return r
 
 

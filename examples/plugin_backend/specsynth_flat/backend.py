@@ -10,10 +10,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # headless: before OpenGL is 
 
 import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
-from PIL import Image  # noqa: E402
 
 from specsynth.conventions import cam_to_world, opencv_to_opengl_c2w  # noqa: E402
-from specsynth.glutil import KCamera, release_renderer  # noqa: E402
+from specsynth.glutil import KCamera, draw_in_name_order, release_renderer, texture_from_file  # noqa: E402
 from specsynth.ir import CameraIR, MaterialIR, RenderResult, RenderScene  # noqa: E402
 from specsynth.meshio import read_mesh  # noqa: E402
 from specsynth.spec import QualityPreset  # noqa: E402
@@ -47,6 +46,7 @@ class FlatBackend:
         if self._renderer is None or (self._renderer.viewport_width, self._renderer.viewport_height) != (w, h):
             self.close_renderer()
             self._renderer = pyrender.OffscreenRenderer(w, h)
+            draw_in_name_order(self._renderer)
         pose = opencv_to_opengl_c2w(cam_to_world(camera.R_w2c, camera.t_w2c))
         node = self._scene.add(KCamera(camera.K_array, camera.near, camera.far), pose=pose)
         try:
@@ -69,11 +69,8 @@ def _mesh(path: str, material: MaterialIR, textures: dict[str, pyrender.Texture]
     mesh = read_mesh(path).validate(path)
     tex = None
     if material.texture is not None and mesh.uv is not None:
-        if material.texture not in textures:
-            with Image.open(material.texture) as im:
-                sampler = pyrender.Sampler(minFilter=pyrender.constants.GLTF.LINEAR_MIPMAP_LINEAR)  # no moire far away
-                textures[material.texture] = pyrender.Texture(source=np.asarray(im.convert("RGB")), source_channels="RGB",
-                                                              sampler=sampler)
+        if material.texture not in textures:  # mip-mapped (no moire far away), rows 4-byte aligned
+            textures[material.texture] = texture_from_file(material.texture)
         tex = textures[material.texture]
     mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=(*material.base_color, 1.0), baseColorTexture=tex,
                                              doubleSided=True, alphaMode="OPAQUE")
