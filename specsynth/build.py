@@ -455,18 +455,34 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
     summary.images = len(images)
     summary.instances = sum(len(im.instances) for im, _ in images)
     _account_savings(summary, images, pipe.cached_render)
-    from .assets import resolve_objects
     from .verify import write_index
     from .writers import write_outputs
     from .writers.attribution import write_attribution
 
-    models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
-    write_outputs(out, graph.spec, images, models)
+    write_outputs(out, graph.spec, images, dataset_models(graph, images))
     write_attribution(out, credits, graph.spec.name)
     write_manifest(graph, out, pipe.arr_jobs)
     write_json(out / "failures.json", summary.failures)
     write_index(out)  # last: every output file is in place
     summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
+
+
+def dataset_models(graph: JobGraph, images) -> list:
+    """The models the dataset's annotations name: the spec's objects, and the annotated
+    distractors that appear (each under the obj_id it was annotated with)."""
+    from dataclasses import replace
+
+    from .assets import resolve_objects
+    from .spec import Objects
+
+    models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
+    d, n = graph.spec.arrangements.distractors, len(models)
+    extra = sorted({g.obj_id for rec, _ in images for g in rec.instances} - {m.obj_id for m in models})
+    if not (d.annotate and extra):
+        return models
+    found = {a.name: a for a in resolve_objects(Objects(builtin=sorted({d.name_of(i, n) for i in extra})),
+                                                graph.spec_path.parent)}
+    return models + [replace(found[d.name_of(i, n)], obj_id=i) for i in extra]
 
 
 def _trace(spans, t0: float) -> dict[str, Any]:

@@ -157,7 +157,7 @@ class Worker:
 
     def render_scene(self, arr: ArrangementRecord) -> RenderScene:
         """The arrangement in world coordinates (see ``frame`` for what renderers get)."""
-        by_id = {a.obj_id: a for a in self.assets()}
+        by_id = self.assets_by_id(arr)
         objects = tuple(
             MeshInstance(
                 name=f"obj_{o.obj_id:06d}_{o.inst:03d}",
@@ -178,6 +178,15 @@ class Worker:
                                 world=scene.world)
         return self._randomized(scene, ref, arr.arr)
 
+    def assets_by_id(self, arr: ArrangementRecord) -> dict[int, ObjectAsset]:
+        """The dataset's objects and, when annotated, the arrangement's distractors, by obj_id."""
+        by_id = {a.obj_id: a for a in self.assets()}
+        extra = sorted({o.name for o in arr.objects if o.obj_id not in by_id})
+        d, n = self.spec.arrangements.distractors, len(self.assets())
+        for a in self.distractor_assets(extra):
+            by_id[d.obj_id(a.name, n)] = replace(a, obj_id=d.obj_id(a.name, n))
+        return by_id
+
     def _distractor_meshes(self, placed: list[PlacedObject]) -> tuple[MeshInstance, ...]:
         """Distractors are scene geometry (``obj_id`` None): drawn, occluding, never annotated."""
         found = {a.name: a for a in self.distractor_assets(sorted({d.name for d in placed}))}
@@ -195,7 +204,7 @@ class Worker:
                 self._distractors[a.name] = a
         return [self._distractors[n] for n in names]
 
-    def _geometry_maps(self, wd: Path, cam, ann) -> tuple[str | None, str | None]:
+    def _geometry_maps(self, wd: Path, cam, ann, by_id: dict[int, ObjectAsset]) -> tuple[str | None, str | None]:
         """normals.exr and nocs.exr from the annotation's depth, when the spec asks for them."""
         from .maps import nocs_map, normals_from_depth
         from .writers.images import write_exr
@@ -208,7 +217,6 @@ class Worker:
             normals_file = "normals.exr"
             write_exr(wd / normals_file, normals_from_depth(ann.depth, cam.K_array, rays))
         if out.nocs:
-            by_id = {a.obj_id: a for a in self.assets()}
             diagonals = [float(np.linalg.norm(by_id[g.obj_id].extents)) for g in ann.instances]
             poses = [(g.R_m2c, g.t_m2c) for g in ann.instances]
             nocs_file = "nocs.exr"
@@ -298,11 +306,17 @@ class Worker:
             PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
             for n, (i, pose) in enumerate((i, pose) for i, pose in result.placed if i >= len(drop))
         ]
+        if spec.arrangements.distractors.annotate:  # objects like the others, after them in gt order
+            n_obj = len(self.assets())
+            placed += [PlacedObject(obj_id=spec.arrangements.distractors.obj_id(o.name, n_obj), inst=len(placed) + k,
+                                    name=o.name, pose=o.pose) for k, o in enumerate(others)]
+            others = []
         rec = ArrangementRecord(
             arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
             objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
             settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
-            credits=list(scene.credits) + [a.credit for a in models if a.credit],
+            credits=list(scene.credits) + [a.credit for a in models if a.credit]
+            + [a.credit for a in {d.name: d for d in distractors}.values() if a.credit],
             distractors=others,
         )
         rec.credits += self._swapped_credits(rec, ref)
@@ -317,7 +331,7 @@ class Worker:
         annot = self.annotator()
         if objects:
             self.load("annotator", arrange_key, scene)
-        by_id = {a.obj_id: a for a in self.assets()}
+        by_id = self.assets_by_id(arr)
         out = []
         for job in jobs:
             if self.store.has("view", job.key):  # finished before a retry
@@ -366,7 +380,7 @@ class Worker:
         z = float((cam.T_w2c @ focus.matrix)[2, 3]) if focus is not None else 1.0
         return replace(cam, aperture=aperture_m, focus_distance=max(z + jitter, 2.0 * cam.near))
 
-    def _write_image(self, wd: Path, job: Job, res, ann, cam, cam_r, arrange_key: str, scene) -> dict[str, Any]:
+    def _write_image(self, wd: Path, job: Job, res, ann, cam, cam_r, ctx: "_Render") -> dict[str, Any]:
         """Every file of one image into the store folder ``wd`` (sensor effects applied to the colour
         image, each from its own seeded stream) -> the record's file fields and depth scale."""
         from .writers.coco import write_visible_rles
@@ -379,7 +393,7 @@ class Worker:
             seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
         albedo8 = None
         if spec.outputs.albedo or spec.sensor.auto_white_balance:
-            albedo8 = self.albedo(arrange_key, scene).render(cam_r)
+            albedo8 = self.albedo(ctx.arrange_key, ctx.scene).render(cam_r)
             albedo8 = lens.remap_nearest(albedo8, warp) if warp else albedo8
         rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb, albedo8)
         if ext == "jpg":
@@ -409,7 +423,7 @@ class Worker:
         if spec.outputs.exr and res.linear is not None:
             exr_file = "rgb.exr"
             write_exr(wd / exr_file, res.linear)
-        normals_file, nocs_file = self._geometry_maps(wd, cam, ann)
+        normals_file, nocs_file = self._geometry_maps(wd, cam, ann, self.assets_by_id(ctx.arr))
         albedo_file = None
         if spec.outputs.albedo:
             albedo_file = "albedo.png"
@@ -440,7 +454,7 @@ class Worker:
         else:
             ann = ctx.annot.annotate(cam, spec.visibility.delta, ctx.occluders)
         t3 = time.perf_counter()
-        files = self._write_image(wd, job, res, ann, cam, cam_r, ctx.arrange_key, ctx.scene)
+        files = self._write_image(wd, job, res, ann, cam, cam_r, ctx)
         stats = dict(res.stats)
         stats["load_seconds"] = ctx.load_seconds
         stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,

@@ -102,3 +102,28 @@ def test_unknown_distractor_is_a_located_error(tmp_path):
         compile_spec(load_spec(f))
     (pr,) = e.value.problems
     assert pr.line == 12 and pr.path == "arrangements.distractors.objects.1" and "teddyy" in pr.message
+
+
+def test_distractors_annotated_on_request(tmp_path):
+    """distractors.annotate: the distractors become objects of the dataset, under stable obj_ids
+    after the spec's, with their models in bop/models, masks and gt like any object, and credited."""
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC)
+    spec = ["arrangements.distractors={count: [3, 3], objects: [teddy, 'random_urdfs/*'], annotate: true}"]
+    result = build(compile_spec(load_spec(f, spec)), tmp_path / "out", jobs=1)
+    assert not result.failures and result.images >= 1
+    chunk = tmp_path / "out" / "bop" / "train_pbr" / "000000"
+    n_objects = len(load_spec(f).spec.objects.builtin)
+    gts = json.loads((chunk / "scene_gt.json").read_text())
+    extra = {g["obj_id"] for im in gts.values() for g in im if g["obj_id"] > n_objects}
+    assert extra, "no distractor annotated"
+    models = json.loads((tmp_path / "out" / "bop" / "models" / "models_info.json").read_text())
+    assert extra <= {int(k) for k in models}
+    d = load_spec(f, spec).spec.arrangements.distractors
+    for obj_id in extra:
+        name = d.name_of(obj_id, n_objects)
+        assert d.obj_id(name, n_objects) == obj_id and (name == "teddy" or name.startswith("random_urdfs/"))
+    credits = json.loads((tmp_path / "out" / "attribution.json").read_text())
+    assert any("random_urdfs" in c.get("source", "") or c.get("name") == "teddy" for c in credits)
+    for im, entries in gts.items():
+        assert len(list(chunk.glob(f"mask/{int(im):06d}_*.png"))) == len(entries)
