@@ -11,7 +11,7 @@ import errno
 import os
 import shutil
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +43,35 @@ class MeshData:
             if a is not None and a.shape != (len(v), cols):
                 raise MeshFormatError(f"{what}: {name} has shape {a.shape}, expected ({len(v)}, {cols})")
         return self
+
+    def with_usable_normals(self) -> "MeshData":
+        """The mesh with faces wound the way its normals point, and every zero-length or
+        non-finite normal replaced by the area-weighted normal of the faces around its vertex.
+
+        Library models carry both: triangles wound against their vertex normals (one Sweet Home 3D
+        desk has 394 of 472 such faces in one part) and a few zero normals (a laptop has 148), which
+        a renderer can only interpolate into garbage. A face is turned when its winding normal
+        points against the sum of its vertices' normals; valid normals are kept as they are."""
+        if self.normals is None:
+            return self
+        n = np.asarray(self.normals, np.float64)
+        length = np.linalg.norm(n, axis=1)
+        bad = ~np.isfinite(length) | (length < 1e-6)
+        v, f = np.asarray(self.vertices, np.float64), np.asarray(self.faces)
+        face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
+        good_n = np.where(bad[:, None], 0.0, n)
+        against = np.einsum("fj,fj->f", face_n, good_n[f].sum(axis=1)) < 0
+        if not bad.any() and not against.any():
+            return self
+        f = np.where(against[:, None], f[:, [0, 2, 1]], f)
+        face_n = np.where(against[:, None], -face_n, face_n)
+        acc = np.zeros_like(v)
+        for k in range(3):
+            np.add.at(acc, f[:, k], face_n)
+        acc_len = np.linalg.norm(acc, axis=1, keepdims=True)
+        fallback = np.where(acc_len > 0, acc / np.where(acc_len > 0, acc_len, 1.0), [0.0, 0.0, 1.0])
+        fixed = np.where(bad[:, None], fallback, n).astype(np.float32)
+        return replace(self, faces=f.astype(self.faces.dtype), normals=fixed)
 
     @property
     def bounds(self) -> np.ndarray:

@@ -8,6 +8,8 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import pytest
 
 from specsynth import assets
@@ -209,3 +211,30 @@ def test_cached_asset_never_points_into_another_folder(cache, tmp_path):
     assert Path(obj_b.material.texture).read_bytes() == (b / "tex.png").read_bytes()
     (a / "tex.png").unlink()
     assert Path(obj_a.material.texture).is_file()  # the first build's copy survives its source
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31), st.floats(0.0, 0.6))
+def test_unusable_normals_are_replaced_by_their_faces_normal(seed, broken):
+    """A normal of zero length or NaN (library furniture has some) becomes the area-weighted normal
+    of its faces; every other normal is kept as it was; faces end up wound the way they point."""
+    from specsynth.meshio import MeshData
+
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(-0.2, 0.2, 9)
+    xs, ys = np.meshgrid(np.arange(3.0), np.arange(3.0))
+    v = np.stack([xs.ravel(), ys.ravel(), z], axis=1)
+    f = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [3, 4, 7], [3, 7, 6], [4, 5, 8], [4, 8, 7]])
+    n = rng.normal(size=(9, 3)) * 0.3 + [0.0, 0.0, 1.0]  # roughly up, as a height field's normals are
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    bad = rng.random(9) < broken
+    n[bad] = np.where(rng.random((bad.sum(), 1)) < 0.5, 0.0, np.nan)
+    fixed = MeshData(vertices=v.astype(np.float32), faces=f, normals=n.astype(np.float32)).with_usable_normals().normals
+    assert np.isfinite(fixed).all() and np.allclose(np.linalg.norm(fixed, axis=1), 1.0, atol=1e-5)
+    assert np.array_equal(fixed[~bad], n[~bad].astype(np.float32))
+    assert (fixed[bad][:, 2] > 0).all()  # a height field wound counter-clockwise faces +z
+    # Turned upside down, the same faces are re-wound to agree with the (downward) normals.
+    down = MeshData(vertices=v.astype(np.float32), faces=f, normals=np.tile([0.0, 0.0, -1.0], (9, 1)).astype(np.float32))
+    g = down.with_usable_normals().faces
+    vv = v[g]
+    assert (np.cross(vv[:, 1] - vv[:, 0], vv[:, 2] - vv[:, 0])[:, 2] < 0).all()
