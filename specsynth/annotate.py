@@ -436,42 +436,64 @@ class Annotator:
         :mod:`.lens`): masks, depth and visible counts are the pinhole renders looked up at every
         distorted pixel's ray (nearest); ``px_count_all`` and ``bbox_obj`` follow the amodal
         silhouette through the distortion, beyond the image up to where the model stays monotonic."""
+        self._require_scene()
+        look = self._lens_lookup(camera, warp, k, self._occluder_nodes(occluders))
+        instances, masks, masks_visib = [], [], []
+        for n, obj in enumerate(self._objects):
+            m, visib, px_all, bbox_obj = self._through_lens(camera, n, look, delta)
+            px_visib = int(np.count_nonzero(visib))
+            R, t = model_to_camera(camera.T_w2c, obj.matrix)
+            instances.append(InstanceGT(
+                obj_id=int(obj.obj_id), inst=int(obj.inst), R_m2c=[[float(x) for x in row] for row in R],
+                t_m2c=[float(x) for x in t], bbox_obj=bbox_obj if px_visib else list(EMPTY_BBOX),
+                bbox_visib=bbox_from_mask(visib) if px_visib else list(EMPTY_BBOX), px_count_all=px_all,
+                px_count_valid=int(np.count_nonzero(m & (look["dist_scene"] > 0))), px_count_visib=px_visib,
+                visib_fract=float(px_visib / px_all) if px_all else 0.0))
+            masks.append(m)
+            masks_visib.append(visib)
+        return Annotation(instances=instances, masks=masks, masks_visib=masks_visib, depth=look["depth"])
+
+    def visib_fract_lens(self, camera: CameraIR, warp, k, inst: int, delta: float) -> float:
+        """:meth:`visib_fract` through the lens: the same number as :meth:`annotate_lens` gives."""
+        self._require_scene()
+        if inst not in self._by_inst:
+            raise KeyError(f"no object with inst={inst} in the loaded scene")
+        look = self._lens_lookup(camera, warp, k, self._nodes)
+        _, visib, px_all, _ = self._through_lens(camera, self._by_inst[inst], look, delta)
+        return float(np.count_nonzero(visib) / px_all) if px_all else 0.0
+
+    def _lens_lookup(self, camera: CameraIR, warp, k, nodes) -> dict:
+        """The scene's depth through the lens and what every object's lookup shares."""
         from . import lens
 
-        self._require_scene()
-        nodes = self._occluder_nodes(occluders)
         self._set_camera(camera)
         win = self._render(camera, nodes, warp.x0, warp.y0, warp.x0 + warp.width, warp.y0 + warp.height)
         depth = lens.remap_nearest(win, warp)
         factor = np.sqrt((warp.rays ** 2).sum(axis=-1) + 1.0)
-        dist_scene = (depth * factor).astype(np.float32)
-        r_limit = lens.monotonic_radius(k, float(np.linalg.norm(warp.rays, axis=-1).max()))
-        u, v = warp.map_u + warp.x0, warp.map_v + warp.y0  # pinhole image pixels
-        instances, masks, masks_visib = [], [], []
-        for n, obj in enumerate(self._objects):
-            view = self._object_alone(camera, n)
-            d_obj = lens.sample_nearest(view.depth, u - view.x0, v - view.y0) if view.depth.size else np.zeros_like(depth)
-            dist_obj = (d_obj * factor).astype(np.float32)
-            m = dist_obj > 0
-            visib = m & ((dist_obj - dist_scene <= np.float32(delta)) | (dist_scene == 0))
-            ys, xs = np.nonzero(view.depth > 0)
-            pix, area = lens.distorted_silhouette(camera.K_array, np.stack([xs + view.x0, ys + view.y0], -1).astype(np.float64), k, r_limit)
-            px_visib = int(np.count_nonzero(visib))
-            px_all = max(int(round(float(area.sum()))), int(np.count_nonzero(m)))
-            bbox_obj, bbox_visib = list(EMPTY_BBOX), list(EMPTY_BBOX)
-            if px_visib:
-                lo, hi = np.rint(pix.min(axis=0)).astype(int), np.rint(pix.max(axis=0)).astype(int)
-                bbox_obj = [int(lo[0]), int(lo[1]), int(hi[0] - lo[0]), int(hi[1] - lo[1])]
-                bbox_visib = bbox_from_mask(visib)
-            R, t = model_to_camera(camera.T_w2c, obj.matrix)
-            instances.append(InstanceGT(
-                obj_id=int(obj.obj_id), inst=int(obj.inst), R_m2c=[[float(x) for x in row] for row in R],
-                t_m2c=[float(x) for x in t], bbox_obj=bbox_obj, bbox_visib=bbox_visib, px_count_all=px_all,
-                px_count_valid=int(np.count_nonzero(m & (dist_scene > 0))), px_count_visib=px_visib,
-                visib_fract=float(px_visib / px_all) if px_all else 0.0))
-            masks.append(m)
-            masks_visib.append(visib)
-        return Annotation(instances=instances, masks=masks, masks_visib=masks_visib, depth=depth)
+        return {"depth": depth, "factor": factor, "dist_scene": (depth * factor).astype(np.float32), "warp": warp,
+                "k": k, "r_limit": lens.monotonic_radius(k, float(np.linalg.norm(warp.rays, axis=-1).max()))}
+
+    def _through_lens(self, camera: CameraIR, n: int, look: dict, delta: float):
+        """Object ``n`` through the lens: (amodal mask, visible mask, px_count_all, bbox_obj)."""
+        from . import lens
+
+        warp = look["warp"]
+        view = self._object_alone(camera, n)
+        u, v = warp.map_u + warp.x0 - view.x0, warp.map_v + warp.y0 - view.y0  # into the object's window
+        d_obj = lens.sample_nearest(view.depth, u, v) if view.depth.size else np.zeros_like(look["depth"])
+        dist_obj = (d_obj * look["factor"]).astype(np.float32)
+        m = dist_obj > 0
+        dist_scene = look["dist_scene"]
+        visib = m & ((dist_obj - dist_scene <= np.float32(delta)) | (dist_scene == 0))
+        ys, xs = np.nonzero(view.depth > 0)
+        pix, area = lens.distorted_silhouette(camera.K_array, np.stack([xs + view.x0, ys + view.y0], -1).astype(np.float64),
+                                              look["k"], look["r_limit"])
+        px_all = max(int(round(float(area.sum()))), int(np.count_nonzero(m)))
+        bbox_obj = list(EMPTY_BBOX)
+        if len(pix):
+            lo, hi = np.rint(pix.min(axis=0)).astype(int), np.rint(pix.max(axis=0)).astype(int)
+            bbox_obj = [int(lo[0]), int(lo[1]), int(hi[0] - lo[0]), int(hi[1] - lo[1])]
+        return m, visib, px_all, bbox_obj
 
     def close(self) -> None:
         if self._renderer is not None:

@@ -347,7 +347,10 @@ class Worker:
                 target = (focus.matrix @ np.append(centre, 1.0))[:3] + origin  # world frame
                 s = cameras.sample_camera(rng, target, spec.cameras)
                 t0 = time.perf_counter()
-                vf = annot.visib_fract(self.camera(s.R_w2c, s.t_w2c, origin), focus.inst, spec.visibility.delta)
+                cam = self.camera(s.R_w2c, s.t_w2c, origin)
+                warp = self.lens_warp()  # through a lens, the fraction of the distorted image's object
+                vf = (annot.visib_fract_lens(cam, warp, spec.intrinsics.distortion, focus.inst, spec.visibility.delta)
+                      if warp else annot.visib_fract(cam, focus.inst, spec.visibility.delta))
                 rec.tries += 1
                 if vf >= spec.visibility.threshold and self._in_free_space(annot, s, origin):
                     rec.accepted = True

@@ -242,3 +242,19 @@ def test_exposure_poses_run_around_the_mid_pose(motion, rvec):
         assert np.allclose(close[:3, 3] - open_[:3, 3], T[:3, :3] @ np.asarray(motion[:3]), atol=1e-12)
     want, _ = cv2.Rodrigues(np.asarray(rvec, np.float64))
     assert np.allclose(rotation_vector_matrix(rvec), want, atol=1e-9)
+
+
+def test_visibility_precheck_measures_through_the_lens(lens_build):
+    """The camera pre-check's visible fraction of the focused object is the distorted image's: the
+    same number the annotation gives it."""
+    info = json.loads((lens_build / "bop" / "train_pbr" / "000000" / "scene_gt_info.json").read_text())
+    views = [json.loads(p.read_text()) for p in (lens_build / ".specsynth" / "store" / "view").glob("*/*/record.json")]
+    checked = 0
+    for v in views:
+        rec = v.get("record", v)
+        if not rec.get("accepted"):
+            continue
+        got = info[str(rec["index"])][rec["focus_inst"]]["visib_fract"]
+        assert got == pytest.approx(rec["focus_visib_fract"], abs=1e-9), rec
+        checked += 1
+    assert checked >= 2
