@@ -201,7 +201,6 @@ class Annotator:
         self._flags = F.DEPTH_ONLY | F.SEG | F.SKIP_CULL_FACES
         self._renderer = pyrender.OffscreenRenderer(self.width, self.height)
         glutil.use_depth_pass(self._renderer)  # both faces drawn; coverage maps cut holes
-        glutil.draw_in_name_order(self._renderer)
         self._pscene = pyrender.Scene(bg_color=(0, 0, 0, 0), ambient_light=(0, 0, 0))
         self._camera = glutil.KCamera(np.eye(3), 0.01, 100.0)
         self._camera_node = self._pscene.add(self._camera)

@@ -59,8 +59,7 @@ def _limit(env: str, default: float) -> float:
 
 
 def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
-    """Located problems the spec alone shows: a plan or an image too large to build on purpose, a
-    camera effect the backend cannot render."""
+    """Located problems for a plan or an image too large to build on purpose."""
     problems = []
     images = spec.arrangements.count * spec.cameras.per_arrangement
     max_images = _limit("SPECSYNTH_MAX_IMAGES", MAX_IMAGES)
@@ -74,6 +73,12 @@ def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
         problems.append(loaded.locate("intrinsics.width", f"a {spec.intrinsics.width} x {spec.intrinsics.height} image "
                                       f"needs about {need / (1 << 30):.1f} GiB per worker ({BYTES_PER_PIXEL} B/pixel), over "
                                       f"the limit of {max_bytes / (1 << 30):.1f} GiB (set SPECSYNTH_MAX_WORKER_GB to raise it)"))
+    return problems
+
+
+def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
+    """Located problems for a camera effect the spec's backend cannot render."""
+    problems = []
     caps = backend_plugin(spec.backend.name).capabilities
     for name, what in (("depth_of_field", "depth of field"), ("motion_blur", "motion blur")):
         if getattr(spec.cameras, name) is not None and not getattr(caps, name):
@@ -205,7 +210,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     """Resolve asset and scene fingerprints and derive the per-stage input digests."""
     spec = loaded.spec
     data = spec.model_dump(mode="json")
-    problems = check_budgets(spec, loaded)
+    problems = check_budgets(spec, loaded) + check_capabilities(spec, loaded)
     if problems:  # before hashing assets or loading scenes: refusing is the cheap part
         raise SpecError(problems)
     try:

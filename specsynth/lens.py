@@ -15,7 +15,7 @@ labels and depth, so every output is the same warp of one render.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -184,8 +184,6 @@ def distorted_silhouette(K, uv: np.ndarray, k, r_limit: float) -> tuple[np.ndarr
 
 def render_camera(camera, warp: Warp):
     """The pinhole camera a backend renders for a distorted ``camera``: its window of ``warp``."""
-    from dataclasses import replace
-
     K = np.asarray(camera.K, np.float64).copy()
     K[0, 2] -= warp.x0
     K[1, 2] -= warp.y0

@@ -1,9 +1,10 @@
 """The camera's sensor and processing, applied after rendering: the same in every backend.
 
-RGB: auto exposure meters the image to middle grey; auto white balance divides out the colour of the light in view (the render over the view's
-albedo: what a camera's AWB estimates, here known exactly), then exposure and white-balance errors scale the linear radiance, then shot noise (std
-proportional to the square root of the signal) and read noise (constant std) are added, all in
-linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
+RGB: auto white balance divides out the colour of the light in view (the render over the view's
+albedo: what a camera's AWB estimates, here known exactly) and auto exposure meters the image to
+middle grey; then exposure and white-balance errors scale the linear radiance, then shot noise
+(std proportional to the square root of the signal) and read noise (constant std) are added, all
+in linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
 light sensor's errors on a copy of the exact depth (axial noise growing with z², holes at depth
 jumps, random dropout, quantisation). Every draw comes from the generator passed in, which the
 caller seeds from the render job: the same job gives the same noise on every machine.
@@ -13,13 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .colour import linear_to_srgb8, srgb_to_linear
-from .colour import kelvin_rgb
+from .colour import kelvin_rgb, linear_to_srgb8, srgb_to_linear
 from .spec import DepthSensor, Sensor
-
 
 REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
 AWB_GAINS = (0.2, 5.0)  # a camera's AWB range: about 2000 K to 12000 K under one light
+MIDDLE_GREY = 0.18
+AE_RANGE = (1.0 / 16.0, 16.0)
 
 
 def illuminant(linear: np.ndarray, albedo: np.ndarray, clipped: float = np.inf) -> np.ndarray | None:
@@ -37,10 +38,6 @@ def balance_gains(light: np.ndarray | None) -> np.ndarray:
     if light is None or not np.all(np.isfinite(light)) or light.max() <= 0:
         return np.ones(3)
     return np.clip(float(light @ REC709_LUMA) / np.maximum(light, 1e-12), *AWB_GAINS)
-
-
-MIDDLE_GREY = 0.18
-AE_RANGE = (1.0 / 16.0, 16.0)
 
 
 def exposure_gain(linear: np.ndarray) -> float:

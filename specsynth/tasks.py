@@ -332,6 +332,7 @@ class Worker:
         if objects:
             self.load("annotator", arrange_key, scene)
         by_id = self.assets_by_id(arr)
+        warp = self.lens_warp()  # through a lens, the fraction is the distorted image's
         out = []
         for job in jobs:
             if self.store.has("view", job.key):  # finished before a retry
@@ -348,7 +349,6 @@ class Worker:
                 s = cameras.sample_camera(rng, target, spec.cameras)
                 t0 = time.perf_counter()
                 cam = self.camera(s.R_w2c, s.t_w2c, origin)
-                warp = self.lens_warp()  # through a lens, the fraction of the distorted image's object
                 vf = (annot.visib_fract_lens(cam, warp, spec.intrinsics.distortion, focus.inst, spec.visibility.delta)
                       if warp else annot.visib_fract(cam, focus.inst, spec.visibility.delta))
                 rec.tries += 1
@@ -426,7 +426,7 @@ class Worker:
         if spec.outputs.exr and res.linear is not None:
             exr_file = "rgb.exr"
             write_exr(wd / exr_file, res.linear)
-        normals_file, nocs_file = self._geometry_maps(wd, cam, ann, self.assets_by_id(ctx.arr))
+        normals_file, nocs_file = self._geometry_maps(wd, cam, ann, ctx.by_id)
         albedo_file = None
         if spec.outputs.albedo:
             albedo_file = "albedo.png"
@@ -480,13 +480,14 @@ class Worker:
         load_phase = load_seconds
         occluders = "scene" if self._draws_scene else "objects"
         preset = spec.quality.resolved()
+        ctx = _Render(arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds,
+                      self.assets_by_id(arr))
         out = []
         for view_job, job in pairs:
             if self.store.has("render", job.key):  # finished before a retry
                 continue
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
             wd = self.store.begin()
-            ctx = _Render(arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds)
             rec = self._render_eye(wd, job, view, view.t_w2c, ctx, load_phase)
             stereo = spec.cameras.stereo
             if stereo is not None:  # the right eye: the rig moved by the baseline along the camera's x
@@ -516,6 +517,7 @@ class _Render:
     occluders: str
     preset: Any
     load_seconds: float
+    by_id: dict  # obj_id -> ObjectAsset of every annotated object
 
 
 def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:

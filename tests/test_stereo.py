@@ -82,3 +82,17 @@ def test_disparity_carries_left_pixels_onto_the_same_object(stereo_build):
             assert grown[ys[inside], xr[inside]].mean() > 0.97, (im, gt)
             checked += 1
     assert checked >= 3
+
+
+def test_rebuilt_without_stereo_the_right_eye_is_gone(stereo_build, tmp_path):
+    """Outputs follow the spec: the same folder rebuilt without `stereo` keeps no right eye."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(stereo_build, out)
+    spec = tmp_path / "s.yaml"
+    spec.write_text(SPEC.replace(", stereo: {baseline: 0.06}", ""))
+    result = build(compile_spec(load_spec(spec)), out, jobs=1)
+    assert not result.failures and result.images >= 2
+    assert not (out / "bop" / "train_pbr_right").exists() and not (out / "coco" / "train_pbr_right.json").exists()
+    assert not list((out / "parquet").glob("*_right.parquet")) and (out / "bop" / "train_pbr").is_dir()

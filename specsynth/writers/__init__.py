@@ -6,6 +6,7 @@ usable on their own. Worker-side per-view encoders live in :mod:`specsynth.write
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Sequence
 
@@ -29,7 +30,15 @@ def write_outputs(
     if right:
         for k, v in _write_eye(Path(out), spec, right, models, f"{spec.split}_right", "_right").items():
             counts[k] = counts.get(k, 0) + v
+    else:  # an earlier stereo build's right eye must not outlive its spec
+        _remove_right_eye(Path(out), spec.split)
     return counts
+
+
+def _remove_right_eye(out: Path, split: str) -> None:
+    shutil.rmtree(out / "bop" / f"{split}_right", ignore_errors=True)
+    for stale in [out / "coco" / f"{split}_right.json", *(out / "parquet").glob("*_right.parquet")]:
+        stale.unlink(missing_ok=True)
 
 
 def _write_eye(out: Path, spec: DatasetSpec, images, models, split: str, suffix: str) -> dict[str, int]:

@@ -143,7 +143,6 @@ class CyclesBackend:
         cy.denoising_use_gpu = False
         cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         r = sc.render
-        # Persistent data silently ignores changed sample counts (see measurements.md): keep it off.
         # Persistent data keeps the synced scene (BVH, images) between renders; it silently ignores a
         # changed sample count (measurements.md), so _apply turns it on only for a render whose
         # settings equal the previous one's and off (a full sync) whenever one changes.
