@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from specsynth.annotate import Annotator
-from specsynth.cameras import camera_ir, sample_camera
-from specsynth.ir import MeshInstance, RenderScene, as_tuple
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import Cameras, Intrinsics
+from specsynth.annotate.engine import Annotator
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import MeshInstance, RenderScene, as_tuple
+from specsynth.spec.models import Cameras, Intrinsics
+from specsynth.views.cameras import camera_ir, sample_camera
 
 
 def ycb_like_meshes(rng: np.random.Generator) -> list[trimesh.Trimesh]:

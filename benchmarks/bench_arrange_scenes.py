@@ -17,9 +17,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from specsynth.compiler import compile_spec
-from specsynth.tasks import BuildContext, Worker
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.tasks import BuildContext, Worker
+from specsynth.spec.yamlio import load_spec
 
 OBJECTS = ["duck", "mug", "teddy", "lego", "jenga", "torus", "toys/cube", "toys/cylinder", "toys/prism",
            "toys/shape_sorter", "random_urdfs/000", "random_urdfs/001", "random_urdfs/002", "random_urdfs/003",

@@ -38,9 +38,9 @@ import time
 from pathlib import Path
 
 from specsynth.backend_api import load_executor
-from specsynth.compiler import compile_spec
-from specsynth.tasks import BuildContext
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.tasks import BuildContext
+from specsynth.spec.yamlio import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

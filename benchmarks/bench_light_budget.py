@@ -16,10 +16,10 @@ import time
 from pathlib import Path
 
 from specsynth.backend_api import load_backend
-from specsynth.bench import psnr8
-from specsynth.preview import overview_camera
+from specsynth.run.bench import psnr8
 from specsynth.scenes import builtin_scenes, load_scene
-from specsynth.spec import PAPER_PRESETS, Intrinsics
+from specsynth.spec.models import PAPER_PRESETS, Intrinsics
+from specsynth.views.preview import overview_camera
 from specsynth_cycles.options import CyclesOptions
 
 

@@ -27,9 +27,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple  # noqa: E402
-from specsynth.meshio import MeshData, write_mesh  # noqa: E402
-from specsynth.spec import PAPER_PRESETS  # noqa: E402
+from specsynth.assets.meshio import MeshData, write_mesh  # noqa: E402
+from specsynth.model.ir import (  # noqa: E402
+    CameraIR,
+    LightIR,
+    MaterialIR,
+    MeshInstance,
+    RenderScene,
+    WorldIR,
+    as_tuple,
+)
+from specsynth.spec.models import PAPER_PRESETS  # noqa: E402
 from specsynth_mitsuba.options import MitsubaOptions  # noqa: E402
 
 

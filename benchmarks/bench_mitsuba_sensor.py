@@ -24,10 +24,10 @@ def bench(width: int = 320, height: int = 240, spp: int = 16, views: int = 6, th
 
     import trimesh
 
-    from specsynth.cameras import look_at
-    from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, as_tuple
-    from specsynth.meshio import MeshData, write_mesh
-    from specsynth.spec import QualityPreset
+    from specsynth.assets.meshio import MeshData, write_mesh
+    from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, as_tuple
+    from specsynth.spec.models import QualityPreset
+    from specsynth.views.cameras import look_at
 
 
     tmp = Path(tempfile.mkdtemp())

@@ -26,8 +26,8 @@ def _objects(folder: Path, n: int):
     import trimesh
     from PIL import Image
 
-    from specsynth.ir import MaterialIR, MeshInstance, as_tuple
-    from specsynth.meshio import MeshData, mesh_bytes, write_mesh
+    from specsynth.assets.meshio import MeshData, mesh_bytes, write_mesh
+    from specsynth.model.ir import MaterialIR, MeshInstance, as_tuple
 
     tex = folder / "tex.png"
     ij = np.indices((256, 256)) // 32
@@ -63,7 +63,7 @@ def _objects(folder: Path, n: int):
 
 
 def _cameras(n: int):
-    from specsynth.ir import CameraIR, as_tuple
+    from specsynth.model.ir import CameraIR, as_tuple
 
     K = ((572.4114, 0.0, 325.2611), (0.0, 573.57043, 242.04899), (0.0, 0.0, 1.0))
     rng = np.random.default_rng(1)
@@ -90,9 +90,9 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
+    from specsynth.model.ir import RenderScene
+    from specsynth.spec.models import PAPER_PRESETS
     from specsynth_photo.backend import PhotoBackend
-    from specsynth.ir import RenderScene
-    from specsynth.spec import PAPER_PRESETS
 
     t_import = time.perf_counter() - t0
     options = {"name": "photo"}

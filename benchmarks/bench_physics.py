@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from specsynth import meshio
-from specsynth.assets import ObjectAsset
-from specsynth.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
+from specsynth.assets import meshio
+from specsynth.assets.resolve import ObjectAsset
+from specsynth.model.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
 from specsynth.physics import ArrangeError, ShapeCache, arrange, build_collision_model
 from specsynth.scenes.types import SceneDesc, Stage
-from specsynth.spec import Arrangements, Physics
+from specsynth.spec.models import Arrangements, Physics
 
 # ../shared beside the repository, as in CI.
 YCBV = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycbv_models_subset" / "models"

@@ -15,9 +15,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from conftest import write_bop_models  # noqa: E402
 
-from specsynth.build import plan  # noqa: E402
-from specsynth.compiler import compile_spec  # noqa: E402
-from specsynth.yamlio import load_spec  # noqa: E402
+from specsynth.plan.compiler import compile_spec  # noqa: E402
+from specsynth.run.build import plan  # noqa: E402
+from specsynth.spec.yamlio import load_spec  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

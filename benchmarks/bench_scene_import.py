@@ -73,11 +73,11 @@ def main() -> None:
     ap.add_argument("--backends", nargs="*", default=["cycles", "mitsuba"])
     args = ap.parse_args()
 
-    from specsynth import meshfiles
-    from specsynth.cameras import look_at
-    from specsynth.ir import CameraIR, RenderScene, as_tuple
+    from specsynth.assets import meshfiles
+    from specsynth.model.ir import CameraIR, RenderScene, as_tuple
     from specsynth.scenes import load_scene
-    from specsynth.spec import QualityPreset, SceneRef
+    from specsynth.spec.models import QualityPreset, SceneRef
+    from specsynth.views.cameras import look_at
 
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)

@@ -44,15 +44,15 @@ from pathlib import Path
 
 import numpy as np
 
-from specsynth_mitsuba import mapping
 from specsynth.backend_api import load_backend
-from specsynth.bench import psnr8
-from specsynth.colour import linear_to_srgb8
-from specsynth.ir import RenderScene, WorldIR, as_tuple
-from specsynth.preview import overview_camera
+from specsynth.model.colour import linear_to_srgb8
+from specsynth.model.ir import RenderScene, WorldIR, as_tuple
+from specsynth.outputs.images import write_png
+from specsynth.run.bench import psnr8
 from specsynth.scenes import builtin_scenes, load_scene
-from specsynth.spec import Intrinsics, QualityPreset
-from specsynth.writers.images import write_png
+from specsynth.spec.models import Intrinsics, QualityPreset
+from specsynth.views.preview import overview_camera
+from specsynth_mitsuba import mapping
 
 CONST_WORLD = (0.2, 0.2, 0.2)  # linear radiance of the stand-in constant world
 
@@ -191,9 +191,9 @@ def furnace(args) -> None:
 
     import trimesh
 
-    from specsynth.cameras import look_at
-    from specsynth.ir import CameraIR, MaterialIR, MeshInstance, as_tuple
-    from specsynth.meshio import MeshData, write_mesh
+    from specsynth.assets.meshio import MeshData, write_mesh
+    from specsynth.model.ir import CameraIR, MaterialIR, MeshInstance, as_tuple
+    from specsynth.views.cameras import look_at
 
     tmp = Path(tempfile.mkdtemp(prefix="furnace-"))
     s = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
@@ -254,9 +254,9 @@ def sky(args) -> None:
     Cycles / Mitsuba luminance ratio per sun elevation and turbidity (mapping.SKY_UNITS)."""
     import tempfile
 
-    from specsynth.cameras import look_at
-    from specsynth.ir import CameraIR, MaterialIR, MeshInstance, as_tuple
-    from specsynth.meshio import MeshData, write_mesh
+    from specsynth.assets.meshio import MeshData, write_mesh
+    from specsynth.model.ir import CameraIR, MaterialIR, MeshInstance, as_tuple
+    from specsynth.views.cameras import look_at
 
     tmp = Path(tempfile.mkdtemp(prefix="sky-"))
     v = np.array([[-500, -500, 0], [500, -500, 0], [500, 500, 0], [-500, 500, 0]], np.float32)
@@ -303,9 +303,9 @@ def shape(args) -> None:
     20 deg on the light's side and opposite it; Mitsuba / Cycles radiance at the floor's centre."""
     import tempfile
 
-    from specsynth.cameras import look_at
-    from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance
-    from specsynth.meshio import MeshData, write_mesh
+    from specsynth.assets.meshio import MeshData, write_mesh
+    from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance
+    from specsynth.views.cameras import look_at
 
     tmp = Path(tempfile.mkdtemp(prefix="shape-"))
     v = np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], np.float32)

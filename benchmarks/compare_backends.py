@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from specsynth.backend_api import load_backend
-from specsynth.bench import psnr8
-from specsynth.preview import draw_stages, overview_camera
+from specsynth.outputs.images import write_png
+from specsynth.run.bench import psnr8
 from specsynth.scenes import builtin_scenes, load_scene
-from specsynth.spec import Intrinsics, QualityPreset
-from specsynth.writers.images import write_png
+from specsynth.spec.models import Intrinsics, QualityPreset
+from specsynth.views.preview import draw_stages, overview_camera
 
 
 def main() -> None:

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from specsynth.bench import _views, psnr8, rel_mse, scaled_intrinsics
 from specsynth.backend_api import load_backend
-from specsynth.compiler import compile_spec
-from specsynth.spec import PAPER_PRESETS, QualityPreset
-from specsynth.tasks import BuildContext, Worker
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.bench import _views, psnr8, rel_mse, scaled_intrinsics
+from specsynth.run.tasks import BuildContext, Worker
+from specsynth.spec.models import PAPER_PRESETS, QualityPreset
+from specsynth.spec.yamlio import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

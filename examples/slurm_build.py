@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 
-from specsynth.executors.dask import CONFIG_DIR
+from specsynth.run.executors.dask import CONFIG_DIR
 
 
 def make_cluster(cores: int = 16, memory: str = "64GB", walltime: str = "04:00:00", **kwargs):

@@ -5,10 +5,10 @@
 # Nothing is downloaded at run time. Usage: scripts/install-assets.sh PYTHON
 set -euo pipefail
 PY=${1:-.venv/bin/python}
-cache=$("$PY" -c 'from specsynth.assets import cache_dir; print(cache_dir())')
+cache=$("$PY" -c 'from specsynth.assets.resolve import cache_dir; print(cache_dir())')
 if [ ! -f "$cache/library/robosuite-textures/manifest.json" ]; then
   tmp=$(mktemp -d)
   trap 'rm -rf "$tmp"' EXIT
   "$PY" -m pip download -q --no-deps "robosuite==1.5.2" -d "$tmp"
-  "$PY" -m specsynth.library.textures "$tmp"/robosuite-*.whl
+  "$PY" -m specsynth.assets.library.textures "$tmp"/robosuite-*.whl
 fi

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from specsynth.build import build
-from specsynth.compiler import compile_spec
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.spec.yamlio import load_spec
 
 SPEC = """\
 name: options

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from PIL import Image, ImageDraw
 
-from specsynth.preview import preview_scene
 from specsynth.scenes import PROCEDURAL, builtin_scenes
+from specsynth.views.preview import preview_scene
 
 
 def main() -> None:

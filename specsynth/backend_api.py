@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
-from .ir import CameraIR, RenderResult, RenderScene
+from .model.ir import CameraIR, RenderResult, RenderScene
 from .plugins import (  # the discovery half of the plugin API, re-exported
     BackendPlugin,
     Capabilities,
@@ -29,7 +29,7 @@ from .plugins import (  # the discovery half of the plugin API, re-exported
 
 __all__ = ["RenderBackend", "BackendPlugin", "Capabilities", "PluginNotFound", "available_backends",
            "backend_plugin", "load_backend", "load_executor"]
-from .spec import QualityPreset
+from .spec.models import QualityPreset
 
 
 @runtime_checkable

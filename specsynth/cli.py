@@ -9,14 +9,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-
-import numpy as np
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from .yamlio import SpecError, load_spec
+from .spec.yamlio import SpecError, load_spec
 
 SCHEMA_PATH = Path("schemas") / "dataset-spec.schema.json"
 
@@ -26,14 +25,14 @@ def _err_console() -> Console:
 
 
 def _compile(spec_path: str, overrides: list[str]):
-    from .compiler import compile_spec
+    from .plan.compiler import compile_spec
 
     loaded = load_spec(spec_path, overrides)
     return loaded, compile_spec(loaded)
 
 
 def cmd_validate(args) -> int:
-    from .compiler import compile_spec
+    from .plan.compiler import compile_spec
 
     status = 0
     for path in args.specs:
@@ -48,7 +47,7 @@ def cmd_validate(args) -> int:
 
 
 def cmd_schema(args) -> int:
-    from .spec import json_schema
+    from .spec.models import json_schema
 
     backends = tuple(args.backends.split(",")) if args.backends else None
     text = json.dumps(json_schema(backends), indent=2, sort_keys=True) + "\n"
@@ -76,7 +75,7 @@ def cmd_compile(args) -> int:
 
 
 def cmd_plan(args) -> int:
-    from .build import plan
+    from .run.build import plan
 
     _, graph = _compile(args.spec, args.set)
     p = plan(graph, Path(args.out))
@@ -107,7 +106,7 @@ def _summary_table(s) -> Table:
 
 
 def cmd_build(args) -> int:
-    from .build import build
+    from .run.build import build
 
     _, graph = _compile(args.spec, args.set)
     console = Console(stderr=True) if not args.quiet else None
@@ -138,7 +137,7 @@ def cmd_build(args) -> int:
 
 
 def cmd_diff(args) -> int:
-    from .build import diff, manifest_of, read_manifest
+    from .run.build import diff, manifest_of, read_manifest
 
     def side(x: str):
         p = Path(x)
@@ -149,7 +148,7 @@ def cmd_diff(args) -> int:
 
     d = diff(side(args.a), side(args.b))
     if Path(args.a).is_dir() and Path(args.b).is_dir():
-        from .verify import compare
+        from .run.verify import compare
 
         d["files"] = files = compare(Path(args.a), Path(args.b))
         edited = any(files[s][k] for s in ("a_since_built", "b_since_built") for k in ("changed", "missing"))
@@ -181,7 +180,7 @@ def cmd_scenes(args) -> int:
     from .scenes import builtin_scenes, stage_table
 
     if args.action == "preview":
-        from .preview import preview_scene
+        from .views.preview import preview_scene
 
         if not args.name:
             print("error: scenes preview needs a scene name (see `specsynth scenes`)", file=sys.stderr)
@@ -300,7 +299,7 @@ def cmd_backends(args) -> int:
 
 
 def cmd_furniture(args) -> int:
-    from .library.furniture import catalogue
+    from .assets.library.furniture import catalogue
 
     items = [i for i in catalogue() if not args.category or i.category.lower() == args.category.lower()]
     if args.json:
@@ -319,7 +318,7 @@ def cmd_furniture(args) -> int:
 
 
 def cmd_view(args) -> int:
-    from .qa import contact_sheet
+    from .outputs.qa import contact_sheet
 
     dest = contact_sheet([Path(o) for o in args.outs], Path(args.out), n=args.n, seed=args.seed)
     print(f"wrote {dest}")
@@ -327,7 +326,7 @@ def cmd_view(args) -> int:
 
 
 def cmd_stats(args) -> int:
-    from .qa import dataset_stats
+    from .outputs.qa import dataset_stats
 
     table = dataset_stats(Path(args.dataset), Path(args.out))
     t = Table(title=f"stats: {args.dataset}")
@@ -341,7 +340,7 @@ def cmd_stats(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import equal_error_speedups, run_bench
+    from .run.bench import equal_error_speedups, run_bench
 
     _, graph = _compile(args.spec, args.set)
     console = Console()
@@ -366,7 +365,7 @@ def cmd_bench(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from .writers.yolo import export_yolo
+    from .outputs.yolo import export_yolo
 
     s = export_yolo(Path(args.dataset), Path(args.dest), min_visib=args.min_visib, val_split=args.val,
                     val_fraction=args.val_fraction)
@@ -514,13 +513,13 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:
         if args.debug:
             raise
-        from .assets import AssetError
+        from .assets.library.furniture import LibraryError
+        from .assets.resolve import AssetError
         from .backend_api import PluginNotFound
-        from .build import BuildLocked, UnsafeOutput
-        from .library.furniture import LibraryError
-        from .qa import DatasetFileError
-        from .store import CorruptRecord
-        from .writers.yolo import ExportError
+        from .outputs.qa import DatasetFileError
+        from .outputs.yolo import ExportError
+        from .run.build import BuildLocked, UnsafeOutput
+        from .run.store import CorruptRecord
 
         if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError, LibraryError,
                           CorruptRecord, UnsafeOutput, DatasetFileError)):

@@ -27,10 +27,10 @@ from typing import Literal
 
 import numpy as np
 
-from . import meshio
-from .assets import ObjectAsset
+from .assets import meshio
+from .assets.resolve import ObjectAsset
 from .scenes.types import SceneDesc, Stage
-from .spec import Arrangements, Physics
+from .spec.models import Arrangements, Physics
 
 # A plausible average for household objects (wood/plastic/cardboard with air inside); only mass
 # ratios matter for the arrangement, not absolute masses.
@@ -119,7 +119,7 @@ class ShapeCache:
 
 def default_collision_cache_dir() -> Path:
     """Where convex decompositions are kept: under the assets cache when it defines one."""
-    from . import assets
+    from .assets import resolve as assets
 
     base = getattr(assets, "cache_dir", None) or getattr(assets, "CACHE_DIR", None)
     if callable(base):

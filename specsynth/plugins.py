@@ -40,7 +40,7 @@ class Capabilities:
 @dataclass(frozen=True)
 class BackendPlugin:
     name: str
-    options: type  # a subclass of specsynth.spec.BackendOptions with ``name: Literal[<name>]``
+    options: type  # a subclass of specsynth.spec.models.BackendOptions with ``name: Literal[<name>]``
     backend: str  # "module:Class" of the renderer, imported only where a render happens
     capabilities: Capabilities = Capabilities()
     distributions: tuple[str, ...] = ()  # whose versions change the pixels (read from metadata)

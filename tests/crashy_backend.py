@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import ctypes
 import os
-
 from typing import Literal
 
 import numpy as np
 
-from specsynth.ir import RenderResult
+from specsynth.model.ir import RenderResult
 from specsynth.plugins import BackendPlugin
-from specsynth.spec import BackendOptions
+from specsynth.spec.models import BackendOptions
 
 
 class CrashyOptions(BackendOptions):

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from specsynth.cameras import camera_pose, project
-from specsynth.ir import CameraIR, MeshInstance, RenderScene, as_tuple
-from specsynth.meshio import MeshData, write_mesh
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import CameraIR, MeshInstance, RenderScene, as_tuple
+from specsynth.views.cameras import camera_pose, project
 
 W, H = 64, 48
 FX = FY = 100.0
@@ -24,7 +24,7 @@ DELTA = 0.005
 
 @pytest.fixture(scope="module")
 def annotator():
-    from specsynth.annotate import Annotator
+    from specsynth.annotate.engine import Annotator
 
     try:
         ann = Annotator(W, H)
@@ -214,7 +214,7 @@ def test_fully_hidden_and_outside(annotator, tmp_path):
 
 
 def test_mesh_cache_across_loads_and_shared_meshes(annotator, tmp_path, monkeypatch):
-    import specsynth.annotate as annotate_mod
+    import specsynth.annotate.engine as annotate_mod
 
     reads = []
     real = annotate_mod.read_mesh
@@ -245,7 +245,7 @@ def test_camera_size_mismatch(annotator, analytic_scene):
 
 def bop_reference(annotator, cam, delta):
     """calc_gt_info.py step by step: every object alone on the full 3x canvas, full-image scene depth."""
-    from specsynth.annotate import depth_to_dist_factor
+    from specsynth.annotate.engine import depth_to_dist_factor
 
     annotator._set_camera(cam)
     depth = annotator._render(cam, annotator._nodes, 0, 0, W, H)
@@ -325,8 +325,8 @@ def test_free_distance_finds_cameras_inside_walls_and_objects():
     (the old annotation engine culled those back faces and saw through the wall)."""
     from pathlib import Path
 
-    from specsynth.annotate import Annotator
-    from specsynth.ir import RenderScene
+    from specsynth.annotate.engine import Annotator
+    from specsynth.model.ir import RenderScene
     from specsynth.scenes import load_scene
 
     d = load_scene("room2", Path("."))

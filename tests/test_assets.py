@@ -8,14 +8,14 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-import pytest
 
-from specsynth import assets
-from specsynth.assets import AssetError
-from specsynth.meshio import read_mesh
-from specsynth.spec import Material, MeshObject, Objects
+from specsynth.assets import resolve as assets
+from specsynth.assets.meshio import read_mesh
+from specsynth.assets.resolve import AssetError
+from specsynth.spec.models import Material, MeshObject, Objects
 
 # ../shared beside the repository (as in CI).
 YCBV = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycbv_models_subset" / "models"
@@ -218,7 +218,7 @@ def test_cached_asset_never_points_into_another_folder(cache, tmp_path):
 def test_unusable_normals_are_replaced_by_their_faces_normal(seed, broken):
     """A normal of zero length or NaN (library furniture has some) becomes the area-weighted normal
     of its faces; every other normal is kept as it was; faces end up wound the way they point."""
-    from specsynth.meshio import MeshData
+    from specsynth.assets.meshio import MeshData
 
     rng = np.random.default_rng(seed)
     z = rng.uniform(-0.2, 0.2, 9)

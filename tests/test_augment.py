@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from specsynth.augment import augment, draw
-from specsynth.spec import Augment
+from specsynth.spec.models import Augment
+from specsynth.views.augment import augment, draw
 
 
 @pytest.fixture

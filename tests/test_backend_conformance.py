@@ -45,8 +45,8 @@ def test_conformance(ctx, check):
 
 
 def _broken_variants():
+    from specsynth.model.ir import RenderResult
     from specsynth_photo.backend import PhotoBackend
-    from specsynth.ir import RenderResult
 
     class UpsideDown(PhotoBackend):  # image rows in OpenGL order
         def render(self, camera, quality, seed, *, clamp=None):
@@ -55,7 +55,7 @@ def _broken_variants():
 
     class Leaky(PhotoBackend):  # load() adds to the previous scene instead of replacing it
         def load(self, scene):
-            from specsynth.ir import RenderScene
+            from specsynth.model.ir import RenderScene
 
             prev = getattr(self, "_seen", ())
             self._seen = tuple({m.name: m for m in prev + scene.meshes}.values())

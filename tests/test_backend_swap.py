@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from specsynth.build import build
-from specsynth.compiler import compile_spec
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.spec.yamlio import load_spec
 
 SPEC = """\
 name: swap
@@ -73,8 +73,8 @@ def test_demo_spec_renders_with_each_backend_by_one_line(tmp_path, name):
     assert not s.failures, s.failures
     assert s.images == 1 and s.instances > 0
     rgb = next((tmp_path / name / "bop" / "train_pbr" / "000000" / "rgb").glob("*.jpg"))
-    from PIL import Image
     import numpy as np
+    from PIL import Image
 
     assert np.asarray(Image.open(rgb)).std() > 5
     assert set(s.render_phases) >= {"load", "annotate", "encode", "write"}

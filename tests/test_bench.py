@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth.bench import Row, camera_savings, equal_error_speedups, psnr8, rel_mse
+from specsynth.run.bench import Row, camera_savings, equal_error_speedups, psnr8, rel_mse
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,7 +75,7 @@ def test_bench_cli_on_the_demo_with_cycles(tmp_path):
 
 
 def test_bench_json_has_no_inf_or_nan():
-    from specsynth.bench import _finite
+    from specsynth.run.bench import _finite
 
     doc = {"rows": [{"psnr": float("inf"), "seconds": 1.5}], "savings": [{"seconds": float("nan")}], "n": 3}
     text = json.dumps(_finite(doc), allow_nan=False)

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth.build import build, diff, plan, read_manifest
-from specsynth.compiler import compile_spec
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build, diff, plan, read_manifest
+from specsynth.spec.yamlio import load_spec
 
 SPEC = """\
 # yaml-language-server: $schema=../schemas/dataset-spec.schema.json
@@ -141,7 +141,7 @@ def test_cli_build_and_diff(spec_file, built, tmp_path):
 def test_view_and_stats_write_readable_files(built, tmp_path):
     from PIL import Image
 
-    from specsynth.qa import contact_sheet, dataset_stats
+    from specsynth.outputs.qa import contact_sheet, dataset_stats
 
     out, s = built
     sheet = contact_sheet([out, out], tmp_path / "sheet.png", n=2)
@@ -192,7 +192,7 @@ def test_texture_bytes_are_part_of_the_keys(tmp_path):
 
 
 def test_unknown_stage_and_missing_texture_fail_validation_located(tmp_path):
-    from specsynth.yamlio import SpecError
+    from specsynth.spec.yamlio import SpecError
 
     f = tmp_path / "t.yaml"
     f.write_text(SPEC.replace("  - name: room\n", "  - name: room\n    stages: [table, nope]\n")
@@ -209,7 +209,7 @@ def test_manifest_lists_only_finished_jobs(tmp_path):
     out = tmp_path / "out"
     g = graph(f)
     build(g, out, jobs=1, until="view")  # no render ran
-    from specsynth.build import write_manifest
+    from specsynth.run.build import write_manifest
 
     write_manifest(g, out, [g.arrangement_jobs(a) for a in range(g.n_arrangements)])
     m = read_manifest(out)
@@ -234,7 +234,7 @@ def test_photo_background_folder_is_relative_to_the_spec(tmp_path):
 def test_render_jobs_store_the_rles_the_merge_would_encode(built):
     """The merge reads each view's visible-mask RLEs from its render job instead of decoding
     every mask PNG serially; they must be exactly what decoding the masks gives."""
-    from specsynth.writers.coco import RLE_FILE, encode_rle, read_mask
+    from specsynth.outputs.coco import RLE_FILE, encode_rle, read_mask
 
     out, s = built
     dirs = [p.parent for p in (out / ".specsynth" / "store" / "render").rglob(RLE_FILE)]
@@ -264,7 +264,7 @@ def test_timeline_covers_every_job_the_build_ran_and_only_those(spec_file, tmp_p
 def test_workers_use_one_blas_thread_and_give_it_back(spec_file, tmp_path):
     from threadpoolctl import threadpool_info
 
-    from specsynth.tasks import BuildContext, close_worker, init_worker
+    from specsynth.run.tasks import BuildContext, close_worker, init_worker
 
     def blas():
         return {i["filepath"]: i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
@@ -283,7 +283,7 @@ def test_workers_use_one_blas_thread_and_give_it_back(spec_file, tmp_path):
 def test_a_torn_record_reruns_its_job_and_the_output_is_whole(spec_file, tmp_path):
     """A record.json cut short (power loss, full disk) used to stop every later build with a bare
     JSONDecodeError; now its job runs again and the dataset comes out as a clean build's."""
-    from specsynth.store import CorruptRecord, Store
+    from specsynth.run.store import CorruptRecord, Store
 
     clean, torn = tmp_path / "clean", tmp_path / "torn"
     build(graph(spec_file), clean, jobs=1)
@@ -307,10 +307,10 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
     called their objects fully visible)."""
     import warnings
 
-    from specsynth.annotate import Annotator
-    from specsynth.records import ArrangementRecord, ViewRecord
-    from specsynth.store import Store
-    from specsynth.tasks import BuildContext, Worker
+    from specsynth.annotate.engine import Annotator
+    from specsynth.model.records import ArrangementRecord, ViewRecord
+    from specsynth.run.store import Store
+    from specsynth.run.tasks import BuildContext, Worker
 
     spec = tmp_path / "s.yaml"
     spec.write_text(SPEC.replace("  - name: room\n", f"  - name: {scene}\n").replace("count: 2", "count: 6")
@@ -343,7 +343,7 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
 def test_outputs_are_copies_and_a_rebuild_restores_edited_ones(spec_file, tmp_path):
     """Outputs used to be hard links into the store: editing one edited the cache, and a rebuild
     did not repair it."""
-    from specsynth.store import Store
+    from specsynth.run.store import Store
 
     out = tmp_path / "out"
     build(graph(spec_file), out, jobs=1)
@@ -361,8 +361,8 @@ def test_outputs_are_copies_and_a_rebuild_restores_edited_ones(spec_file, tmp_pa
 
 @pytest.mark.parametrize("link", ["bop", ".specsynth", "bop/train_pbr/000000/rgb", "coco/train_pbr.json"])
 def test_a_link_out_of_the_output_folder_is_refused_and_nothing_outside_changes(spec_file, tmp_path, link):
-    from specsynth.build import UnsafeOutput
     from specsynth.cli import main
+    from specsynth.run.build import UnsafeOutput
 
     out = tmp_path / "out"
     build(graph(spec_file), out, jobs=1)
@@ -410,7 +410,7 @@ def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path,
     free, nothing finished is lost, and the next build completes the dataset as a clean one."""
     import errno
 
-    from specsynth import meshio
+    from specsynth.assets import meshio
 
     clean, out = tmp_path / "clean", tmp_path / "out"
     build(graph(spec_file), clean, jobs=1)
@@ -441,7 +441,7 @@ def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path,
 
 
 def Store_keys(out, stage):
-    from specsynth.store import Store
+    from specsynth.run.store import Store
 
     return Store(out).keys(stage)
 
@@ -469,8 +469,8 @@ def test_reading_commands_name_a_corrupt_file(spec_file, tmp_path, capsys, cmd, 
 
 
 def test_a_mesh_with_out_of_range_faces_is_named(tmp_path):
-    from specsynth.assets import AssetError, finish_mesh
-    from specsynth.meshio import MeshData
+    from specsynth.assets.meshio import MeshData
+    from specsynth.assets.resolve import AssetError, finish_mesh
 
     bad = MeshData(vertices=np.zeros((3, 3), np.float32), faces=np.array([[0, 1, 7]], np.int32))
     with pytest.raises(AssetError, match=r"broken.ply: face indices out of range \(0..2, found 0..7\)"):

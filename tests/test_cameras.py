@@ -3,7 +3,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from specsynth.cameras import (
+from specsynth.spec.models import Cameras, Intrinsics
+from specsynth.views.cameras import (
     CameraSample,
     camera_ir,
     camera_pose,
@@ -14,7 +15,6 @@ from specsynth.cameras import (
     sample_camera,
     spherical_offset,
 )
-from specsynth.spec import Cameras, Intrinsics
 
 coord = st.floats(-100, 100, allow_nan=False)
 vec3 = st.tuples(coord, coord, coord)

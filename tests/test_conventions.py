@@ -2,8 +2,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from specsynth.cameras import camera_pose, project
-from specsynth.conventions import (
+from specsynth.model.conventions import (
     M_TO_MM,
     cam_to_world,
     m_to_mm,
@@ -14,6 +13,7 @@ from specsynth.conventions import (
     opencv_to_opengl_c2w,
     opengl_projection,
 )
+from specsynth.views.cameras import camera_pose, project
 
 FLIP_YZ = np.diag([1.0, -1.0, -1.0])
 

@@ -8,11 +8,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
-from specsynth import keys, seeds
-from specsynth.spec import json_schema
-from specsynth.store import Store
+from specsynth.plan import keys, seeds
+from specsynth.run.store import Store
+from specsynth.spec.models import json_schema
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,11 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import PAPER_PRESETS, QualityPreset
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.spec.models import PAPER_PRESETS, QualityPreset
 from specsynth_cycles.options import CyclesOptions
-
 from specsynth_cycles.settings import blender_intrinsics, path_settings, preset_samples, project
 
 LOW = PAPER_PRESETS["low"]
@@ -136,7 +135,6 @@ def test_intrinsics_reject_skew():
 def test_entry_point_resolves():
     pytest.importorskip("bpy")
     from specsynth.backend_api import load_backend
-
     from specsynth_cycles.backend import CyclesBackend
 
     assert load_backend("cycles") is CyclesBackend
@@ -443,7 +441,7 @@ def test_index_masks(backend, meshes):
 @pytest.mark.slow
 def test_masks_agree_with_annotation_engine(backend, meshes):
     """Cycles' own object masks vs the pyrender annotator: IoU >= 0.98 for every instance > 400 px."""
-    annotate = pytest.importorskip("specsynth.annotate")
+    annotate = pytest.importorskip("specsynth.annotate.engine")
     floor_mat = MaterialIR(base_color=(0.6, 0.6, 0.6))
     scene = RenderScene(
         meshes=(
@@ -565,7 +563,7 @@ def test_one_thread_worker_uses_one_core(meshes, thread):
     import sys
 
     tests = str(Path(__file__).resolve().parent)
-    # One BLAS thread, as in a build's workers (specsynth.tasks.Worker), so only Cycles is measured.
+    # One BLAS thread, as in a build's workers (specsynth.run.tasks.Worker), so only Cycles is measured.
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     r = subprocess.run([sys.executable, "-c", _ONE_CORE, json.dumps(meshes), tests, str(Path(tests).parent), thread],
                        capture_output=True, text=True, timeout=300, env=env)

@@ -7,8 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from specsynth.compiler import compile_spec
-from specsynth.yamlio import SpecError, load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.spec.yamlio import SpecError, load_spec
 
 SPEC = """\
 name: g

@@ -15,10 +15,10 @@ import yaml
 from PIL import Image
 from pycocotools import mask as mask_utils
 
+from specsynth.assets.meshio import read_mesh
 from specsynth.cli import main
-from specsynth.meshio import read_mesh
-from specsynth.writers.coco import coco_box
-from specsynth.writers.yolo import ExportError, export_yolo, held_out, yolo_line
+from specsynth.outputs.coco import coco_box
+from specsynth.outputs.yolo import ExportError, export_yolo, held_out, yolo_line
 
 ROOT = Path(__file__).resolve().parents[1]
 CHUNK = Path("bop/train_pbr/000000")
@@ -87,8 +87,8 @@ def test_coco_metadata_comes_from_the_spec(demo_bl):
 
 
 def test_coco_metadata_has_fixed_defaults(tmp_path):
-    from specsynth.spec import Metadata
-    from specsynth.writers.coco import date_captured, info_and_licenses
+    from specsynth.outputs.coco import date_captured, info_and_licenses
+    from specsynth.spec.models import Metadata
 
     doc = info_and_licenses(Metadata(), "d")
     assert doc["info"]["date_created"] == "1970-01-01" and doc["info"]["year"] == 1970
@@ -142,9 +142,9 @@ def _dilate(m: np.ndarray, r: int) -> np.ndarray:
 
 def test_user_bop_models_keep_their_origin(tmp_path):
     """A user's BOP model whose origin is at a corner is written as given, not re-centred."""
-    from specsynth.assets import resolve_objects
-    from specsynth.spec import Objects
-    from specsynth.writers.bop import write_models
+    from specsynth.assets.resolve import resolve_objects
+    from specsynth.outputs.bop import write_models
+    from specsynth.spec.models import Objects
 
     src = tmp_path / "models"
     src.mkdir()

@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from specsynth import lens
-from specsynth.build import build
-from specsynth.compiler import compile_spec
-from specsynth.meshio import read_mesh
-from specsynth.yamlio import SpecError, load_spec
+from specsynth.assets.meshio import read_mesh
+from specsynth.model import lens
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.spec.yamlio import SpecError, load_spec
 
 cv2 = pytest.importorskip("cv2")
 
@@ -229,7 +229,7 @@ def test_motion_blur_errors_are_located(tmp_path):
 def test_exposure_poses_run_around_the_mid_pose(motion, rvec):
     """c2w_during_exposure: the mid-exposure pose is the record's; open and close are rigid and
     the camera turns by exactly the rotation vector between them (in its own frame)."""
-    from specsynth.conventions import c2w_during_exposure, rotation_vector_matrix
+    from specsynth.model.conventions import c2w_during_exposure, rotation_vector_matrix
 
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = rotation_vector_matrix(rvec), (0.3, -1.0, 2.0)

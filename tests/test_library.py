@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth.library import furniture, textures
-from specsynth.meshio import read_mesh
+from specsynth.assets.library import furniture, textures
+from specsynth.assets.meshio import read_mesh
 from specsynth.scenes import SceneError, load_scene
 from specsynth.scenes.random_room import random_room
-from specsynth.spec import SceneRef
+from specsynth.spec.models import SceneRef
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")  # library models with missing maps say so
 
@@ -22,7 +22,7 @@ pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")  # library models
 @pytest.fixture()
 def cache(tmp_path, monkeypatch) -> Path:
     """A fresh mesh cache that still sees the installed textures (make install put them in the real one)."""
-    from specsynth.assets import cache_dir
+    from specsynth.assets.resolve import cache_dir
 
     real = cache_dir()
     c = tmp_path / "cache"
@@ -173,7 +173,7 @@ def test_random_room_parameters_from_the_spec(cache, tmp_path):
 def test_clutter_stands_on_open_tops_and_leaves_stages(cache):
     """Small catalogue items stand on tables, counters and cabinets (at the top's height, inside its
     footprint, apart from each other) and are credited; the rooms keep stages above the floor."""
-    from specsynth.library import furniture
+    from specsynth.assets.library import furniture
     from specsynth.scenes.random_room import clutter_items, open_top, random_room
 
     small = {i.id for i in clutter_items()}
@@ -217,9 +217,9 @@ outputs: {depth_scale: 0.25}
 
 
 def _build(spec: Path, out: Path):
-    from specsynth.build import build
-    from specsynth.compiler import compile_spec
-    from specsynth.yamlio import load_spec
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.run.build import build
+    from specsynth.spec.yamlio import load_spec
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -231,8 +231,8 @@ def test_random_room_build_has_a_room_per_arrangement_and_a_complete_attribution
     spec.write_text(SPEC)
     out = tmp_path / "out"
     _build(spec, out)
-    from specsynth.records import ArrangementRecord
-    from specsynth.store import Store
+    from specsynth.model.records import ArrangementRecord
+    from specsynth.run.store import Store
 
     store = Store(out)
     arrs = [ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange")]
@@ -256,7 +256,7 @@ def test_random_room_build_has_a_room_per_arrangement_and_a_complete_attribution
 
 
 def test_attribution_is_written_even_without_third_party_assets(tmp_path):
-    from specsynth.writers.attribution import write_attribution
+    from specsynth.outputs.attribution import write_attribution
 
     assert write_attribution(tmp_path, [], "d") == {"attribution_assets": 0}
     assert "(none)" in (tmp_path / "ATTRIBUTION.md").read_text()

@@ -6,13 +6,14 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
-from specsynth.build import build
-from specsynth.compiler import compile_spec
-from specsynth.maps import backproject, normals_from_depth
-from specsynth.yamlio import load_spec
+from specsynth.annotate.maps import backproject, normals_from_depth
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.spec.yamlio import load_spec
 
 K = np.array([[80.0, 0.0, 39.5], [0.0, 82.0, 29.5], [0.0, 0.0, 1.0]])
 
@@ -157,9 +158,9 @@ ODD_TEXTURE_SNIPPET = """
 import hashlib, sys
 import numpy as np
 from PIL import Image
-from specsynth.albedo import AlbedoRenderer
-from specsynth.ir import CameraIR, MaterialIR, MeshInstance, RenderScene, as_tuple
-from specsynth.meshio import MeshData, write_mesh
+from specsynth.annotate.albedo import AlbedoRenderer
+from specsynth.model.ir import CameraIR, MaterialIR, MeshInstance, RenderScene, as_tuple
+from specsynth.assets.meshio import MeshData, write_mesh
 d = sys.argv[1]
 Image.fromarray(np.random.default_rng(0).integers(0, 255, (255, 255, 3), dtype=np.uint8)).save(d + "/odd.png")
 quad = MeshData(vertices=np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float),
@@ -190,9 +191,9 @@ def test_albedo_of_an_odd_width_texture_is_the_same_in_every_process(tmp_path):
 COPLANAR_SNIPPET = """
 import hashlib, random, sys
 import numpy as np
-from specsynth.albedo import AlbedoRenderer
-from specsynth.ir import CameraIR, MaterialIR, MeshInstance, RenderScene, as_tuple
-from specsynth.meshio import MeshData, write_mesh
+from specsynth.annotate.albedo import AlbedoRenderer
+from specsynth.model.ir import CameraIR, MaterialIR, MeshInstance, RenderScene, as_tuple
+from specsynth.assets.meshio import MeshData, write_mesh
 d = sys.argv[1]
 junk = [object() for _ in range(random.randrange(1, 5000))]  # the heap moved, as other work moves it
 write_mesh(d + "/q.ply", MeshData(vertices=np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float),

@@ -7,11 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from specsynth.cameras import look_at
-from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import PAPER_PRESETS, QualityPreset
-
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.spec.models import PAPER_PRESETS, QualityPreset
+from specsynth.views.cameras import look_at
 from specsynth_mitsuba import mapping
 
 # ----------------------------------------------------------------------------- pure mapping

@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth.cameras import look_at
-from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
-from specsynth.meshio import MeshData
-from specsynth.spec import QualityPreset
-
-from specsynth_mitsuba import mapping, scene as mscene
+from specsynth.assets.meshio import MeshData
+from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.spec.models import QualityPreset
+from specsynth.views.cameras import look_at
+from specsynth_mitsuba import mapping
+from specsynth_mitsuba import scene as mscene
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -139,7 +139,7 @@ import numpy as np, mitsuba as mi
 mi.set_variant('scalar_rgb')
 mi.Bitmap(np.full((8, 16, 3), 0.5, np.float32)).write({str(exr)!r})
 from specsynth_mitsuba.backend import MitsubaBackend
-from specsynth.ir import RenderScene, WorldIR
+from specsynth.model.ir import RenderScene, WorldIR
 b = MitsubaBackend({{'variant': 'auto'}}, threads=1)
 b.load(RenderScene(meshes=(), world=WorldIR(kind='envmap', envmap={str(exr)!r})))
 print('loaded')

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from specsynth.cameras import look_at
-from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import QualityPreset
-
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.spec.models import QualityPreset
+from specsynth.views.cameras import look_at
 from specsynth_mitsuba import mapping
 from specsynth_mitsuba.sensor import PINHOLE, local_coefficients
 
@@ -120,7 +119,7 @@ def test_projection_matches_K_non_square(backend, tmp_path):
 def test_masks_agree_with_annotation_engine(backend, tmp_path):
     """A 10 cm emissive ball (radius ~7 px) rendered with fy != fx: its coverage > 1/2 mask matches the annotation
     engine's (pyrender, exact K) mask up to silhouette pixels, and the centroids agree."""
-    from specsynth.annotate import Annotator
+    from specsynth.annotate.engine import Annotator
 
     try:
         ann = Annotator(64, 48)

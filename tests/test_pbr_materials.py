@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from specsynth.cameras import look_at
-from specsynth.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import QualityPreset
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.spec.models import QualityPreset
+from specsynth.views.cameras import look_at
 
 pytestmark = pytest.mark.slow
 
@@ -128,7 +128,7 @@ def test_emission_map_lights_the_floor(backend, tmp_path):
 def test_coverage_map_cuts_holes_in_the_image_and_the_labels(backend, tmp_path):
     """A card, opaque on its left half only, in front of a lit object: the RGB shows the object
     through the right half, and the annotation engine sees it there too."""
-    from specsynth.annotate import Annotator
+    from specsynth.annotate.engine import Annotator
 
     obj = MeshInstance("obj", _quad(tmp_path, "obj", 0.5), "obj", as_tuple(np.eye(4)),
                        MaterialIR(base_color=(0.9, 0.1, 0.1), specular=0.0, use_vertex_colors=False), obj_id=1, inst=0)

@@ -7,14 +7,14 @@ import pytest
 from PIL import Image
 
 pytest.importorskip("pyrender")
+from specsynth.assets.meshio import read_mesh  # noqa: E402
+from specsynth.backend_api import load_backend  # noqa: E402
+from specsynth.model.ir import CameraIR  # noqa: E402
+from specsynth.spec.models import PAPER_PRESETS  # noqa: E402
+from specsynth.testing import conformance as conf  # noqa: E402
 from specsynth_photo.backend import ALGORITHM_VERSION, PhotoBackend  # noqa: E402
 from specsynth_photo.backgrounds import BackgroundError, BackgroundPool, hdri_paths, skimage_photo_names  # noqa: E402
-from specsynth.backend_api import load_backend  # noqa: E402
-from specsynth.ir import CameraIR  # noqa: E402
-from specsynth.meshio import read_mesh  # noqa: E402
-from specsynth.spec import PAPER_PRESETS  # noqa: E402
 from specsynth_photo.options import PhotoOptions  # noqa: E402
-from specsynth.testing import conformance as conf  # noqa: E402
 
 LOW = PAPER_PRESETS["low"]
 

@@ -12,12 +12,12 @@ import pybullet as p
 import pytest
 import trimesh
 
-from specsynth import meshio
-from specsynth.assets import ObjectAsset
-from specsynth.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
+from specsynth.assets import meshio
+from specsynth.assets.resolve import ObjectAsset
+from specsynth.model.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
 from specsynth.physics import ArrangeError, arrange
 from specsynth.scenes.types import SceneDesc, Stage
-from specsynth.spec import Arrangements, Physics
+from specsynth.spec.models import Arrangements, Physics
 
 TABLE_TOP = 0.75  # m
 

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from specsynth.build import build
-from specsynth.compiler import compile_spec
+from specsynth.plan.compiler import compile_spec
 from specsynth.plugins import PluginNotFound, available_backends, backend_plugin
-from specsynth.spec import BackendOptions, json_schema
-from specsynth.yamlio import SpecError, load_spec
+from specsynth.run.build import build
+from specsynth.spec.models import BackendOptions, json_schema
+from specsynth.spec.yamlio import SpecError, load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """\

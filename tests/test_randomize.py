@@ -10,17 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth.build import build
-from specsynth.compiler import compile_spec
-from specsynth.library import textures
-from specsynth.library.cache import cache_dir
-from specsynth.records import ArrangementRecord
+from specsynth.assets.library import textures
+from specsynth.assets.library.cache import cache_dir
+from specsynth.model.records import ArrangementRecord
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.run.store import Store
+from specsynth.run.tasks import BuildContext, Worker
 from specsynth.scenes import load_scene
 from specsynth.scenes.randomize import randomize_scene
-from specsynth.spec import SceneRandomization
-from specsynth.store import Store
-from specsynth.tasks import BuildContext, Worker
-from specsynth.yamlio import SpecError, load_spec
+from specsynth.spec.models import SceneRandomization
+from specsynth.spec.yamlio import SpecError, load_spec
 
 SPEC = """\
 name: dr

@@ -11,11 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
-
-from specsynth.build import BuildLocked, build, output_lock
-from specsynth.compiler import compile_spec
-from specsynth.yamlio import load_spec
 from test_build import cli_build, tree_digest
+
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import BuildLocked, build, output_lock
+from specsynth.spec.yamlio import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """\
@@ -152,7 +152,7 @@ def test_specsynth_dask_settings_are_dask_settings():
     import distributed  # noqa: F401  (loads Dask's defaults for its keys)
     import yaml
 
-    from specsynth.executors.dask import CONFIG_DIR, _dotted
+    from specsynth.run.executors.dask import CONFIG_DIR, _dotted
 
     ours = _dotted(yaml.safe_load((CONFIG_DIR / "specsynth.yaml").read_text()))
     missing = object()
@@ -163,8 +163,8 @@ def test_local_cluster_workers_get_specsynth_dask_settings(spec_file, tmp_path):
     """No malloc trim threshold (it turns off glibc's adaptive mmap threshold), no profiler, slower
     housekeeping timers."""
     pytest.importorskip("distributed")
-    from specsynth.executors.dask import DaskExecutor
-    from specsynth.tasks import BuildContext
+    from specsynth.run.executors.dask import DaskExecutor
+    from specsynth.run.tasks import BuildContext
 
     g = compile_spec(load_spec(spec_file))
     ex = DaskExecutor(BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path), jobs=2)
@@ -185,7 +185,7 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
     procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
                                "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
-        from specsynth.executors.dask import CONFIG_DIR
+        from specsynth.run.executors.dask import CONFIG_DIR
 
         env = {**os.environ, "DASK_CONFIG": str(CONFIG_DIR)}  # as docs/scaleout.md says
         procs.append(subprocess.Popen([str(bindir / "dask"), "worker", f"tcp://127.0.0.1:{port}", "--nworkers", "2",
@@ -210,8 +210,8 @@ def test_plain_dask_scheduler_and_workers(spec_file, reference, tmp_path):
 def test_local_workers_split_the_cores_unless_told(spec_file, tmp_path):
     from dataclasses import replace
 
-    from specsynth.executors.local import LocalExecutor
-    from specsynth.tasks import BuildContext, available_cores
+    from specsynth.run.executors.local import LocalExecutor
+    from specsynth.run.tasks import BuildContext, available_cores
 
     g = compile_spec(load_spec(spec_file))
     ctx = BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path)
@@ -231,7 +231,7 @@ def test_slurm_example_job_script():
         from slurm_build import make_cluster
     finally:
         sys.path.remove(str(ROOT / "examples"))
-    from specsynth.executors.dask import CONFIG_DIR
+    from specsynth.run.executors.dask import CONFIG_DIR
 
     with make_cluster(cores=16, scheduler_options={"host": "127.0.0.1"}) as cluster:
         script = cluster.job_script()

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specsynth import meshfiles
-from specsynth.meshio import read_mesh
+from specsynth.assets import meshfiles
+from specsynth.assets.meshio import read_mesh
 from specsynth.scenes import SceneError, load_scene, scene_fingerprint
-from specsynth.spec import SceneRef
+from specsynth.spec.models import SceneRef
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -177,8 +177,9 @@ def test_a_missing_gltf_buffer_is_named(tmp_path):
 @pytest.mark.parametrize("backend", ["cycles", "mitsuba"])
 def test_both_textures_show_in_a_real_render(byo, tmp_path, backend):
     """Cycles and Mitsuba draw the glTF checker floor and the OBJ's wood top in their colours."""
-    from specsynth.cli import main
     from PIL import Image
+
+    from specsynth.cli import main
 
     opts = "{name: cycles, samples: 16, denoise: true}" if backend == "cycles" else "{name: mitsuba, samples: 16}"
     out = tmp_path / backend
@@ -199,13 +200,14 @@ def test_both_textures_show_in_a_real_render(byo, tmp_path, backend):
 
 def _masks_agree_with_cycles_rerender(byo: Path, out: Path) -> None:
     """The labels against an independent re-render: Cycles' own instance ids of each view."""
-    from specsynth.compiler import compile_spec
-    from specsynth.records import ArrangementRecord, ViewRecord
-    from specsynth.tasks import BuildContext, Worker
-    from specsynth.yamlio import load_spec
-    from specsynth.ir import CameraIR, as_tuple
-    from specsynth_cycles.backend import CyclesBackend
     from PIL import Image
+
+    from specsynth.model.ir import CameraIR, as_tuple
+    from specsynth.model.records import ArrangementRecord, ViewRecord
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.run.tasks import BuildContext, Worker
+    from specsynth.spec.yamlio import load_spec
+    from specsynth_cycles.backend import CyclesBackend
 
     graph = compile_spec(load_spec(byo / "spec.yaml", ["arrangements.count=1", "cameras.per_arrangement=2"]))
     worker = Worker(BuildContext(spec=graph.spec, spec_dir=byo, out=out))
@@ -422,7 +424,7 @@ def test_a_glb_given_directly_as_the_scene_builds(byo, tmp_path, backend):
 
 
 def test_a_gigantic_mesh_is_refused_before_rendering(tmp_path, monkeypatch):
-    from specsynth import meshfiles
+    from specsynth.assets import meshfiles
 
     monkeypatch.setattr(meshfiles, "MAX_TRIANGLES", 10)  # the same check, at a size a test can afford
     import trimesh
@@ -441,10 +443,10 @@ def test_editing_one_texture_reruns_exactly_the_arrangements_in_that_scene(byo, 
     (and their views and renders), and none drawn in the built-in room."""
     from PIL import Image
 
-    from specsynth.build import build, plan
-    from specsynth.compiler import compile_spec
-    from specsynth.seeds import scene_draw
-    from specsynth.yamlio import load_spec
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.plan.seeds import scene_draw
+    from specsynth.run.build import build, plan
+    from specsynth.spec.yamlio import load_spec
 
     spec = byo / "two.yaml"
     spec.write_text((byo / "spec.yaml").read_text()

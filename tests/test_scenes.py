@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from specsynth import scenes
-from specsynth.meshio import read_mesh
-from specsynth.meshfiles import primitives as procedural
+from specsynth.assets.meshfiles import primitives as procedural
+from specsynth.assets.meshio import read_mesh
 from specsynth.scenes import SceneError
-from specsynth.spec import SceneRef
+from specsynth.spec.models import SceneRef
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 
-from specsynth.build import Call, _run
+from specsynth.run.build import Call, _run
 
 
 class Inline:
@@ -99,7 +99,7 @@ def test_build_splits_view_and_render_groups_but_not_arrangements():
     as a group (that raised inside the scheduler and stopped the whole build)."""
     from types import SimpleNamespace as Job
 
-    from specsynth.build import split_group
+    from specsynth.run.build import split_group
 
     arrange = Call(print, ("w", Job(id="arr=000000")), "arrange", "arr=000000", 1, 0)
     assert split_group(arrange) is None

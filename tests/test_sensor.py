@@ -11,13 +11,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from specsynth.build import build
-from specsynth.colour import linear_to_srgb8, srgb_to_linear
-from specsynth.compiler import compile_spec
-from specsynth.sensor import (AE_RANGE, AWB_GAINS, MIDDLE_GREY, REC709_LUMA, balance_gains, exposure_gain, illuminant,
-                              jpeg_quality, sensor_depth, sensor_rgb)
-from specsynth.spec import DepthSensor, Sensor
-from specsynth.yamlio import SpecError, load_spec
+from specsynth.model.colour import linear_to_srgb8, srgb_to_linear
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.spec.models import DepthSensor, Sensor
+from specsynth.spec.yamlio import SpecError, load_spec
+from specsynth.views.sensor import (
+    AE_RANGE,
+    AWB_GAINS,
+    MIDDLE_GREY,
+    REC709_LUMA,
+    balance_gains,
+    exposure_gain,
+    illuminant,
+    jpeg_quality,
+    sensor_depth,
+    sensor_rgb,
+)
 
 
 def _linear_of(rgb8: np.ndarray) -> np.ndarray:

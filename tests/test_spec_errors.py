@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from specsynth.yamlio import SpecError, load_spec
+from specsynth.spec.yamlio import SpecError, load_spec
 
 BASE = """\
 name: t

@@ -60,8 +60,8 @@ def test_env_var_points_at_models(lm_models, tmp_path):
 
 def test_lmo_and_bl_share_cameras(lm_models):
     """Switching the backend keeps arrangement and camera jobs (same keys)."""
-    from specsynth.compiler import compile_spec
-    from specsynth.yamlio import load_spec
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import load_spec
 
     s = [f"objects.path={lm_models}"]
     h = compile_spec(load_spec(ROOT / "specs/lmo_pbr_h.yaml", s))
@@ -84,8 +84,8 @@ def test_scenes_command_lists_stages():
 def test_demo_swaps_backend_by_name_alone(name):
     """`--set backend.name=mitsuba` on the demo (which asks for denoise) used to fail: denoise was
     a Cycles-only option. Every shipped backend that draws scenes now takes it."""
-    from specsynth.compiler import compile_spec
-    from specsynth.yamlio import load_spec
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import load_spec
 
     loaded = load_spec(ROOT / "specs" / "demo.yaml", [f"backend.name={name}"])
     assert loaded.spec.backend.name == name and loaded.spec.backend.denoise is True

@@ -11,9 +11,9 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
-from specsynth.build import build
-from specsynth.compiler import compile_spec
-from specsynth.yamlio import load_spec
+from specsynth.plan.compiler import compile_spec
+from specsynth.run.build import build
+from specsynth.spec.yamlio import load_spec
 
 SPEC = """\
 name: stereo

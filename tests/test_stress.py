@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from specsynth import cameras
-from specsynth.colour import NonFiniteRender, check_finite
-from specsynth.ir import CameraIR, MeshInstance, RenderScene, as_tuple
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.spec import Cameras, Intrinsics
-from specsynth.writers.images import DepthOverflowError, encode_depth
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.colour import NonFiniteRender, check_finite
+from specsynth.model.ir import CameraIR, MeshInstance, RenderScene, as_tuple
+from specsynth.outputs.images import DepthOverflowError, encode_depth
+from specsynth.spec.models import Cameras, Intrinsics
+from specsynth.views import cameras
 
 pytestmark = pytest.mark.stress
 
@@ -90,14 +90,14 @@ def test_masks_and_depth_match_the_analytic_projection(tmp_path, size, distance,
     """Property: rasterised mask IoU with the exact ray/box test >= 0.98 (edge pixels may differ) and
     the depth at the centre pixel equals the analytic depth within the 24-bit depth buffer's
     quantisation, z^2/near * 2^-22 (0.2 um at 6 cm, 2.1 mm at 9.5 m with near = 1 cm)."""
-    from specsynth.annotate import Annotator
+    from specsynth.annotate.engine import Annotator
 
     centre = np.array([offset, -offset, 0.5 * size[2]])
     eye = centre + cameras.spherical_offset(30.0, 35.0, distance)
     R, t = cameras.look_at(eye, centre)
     cam = cameras.camera_ir(INTR, R, t)
     scene = _box_scene(tmp_path, size, centre)
-    origin = centre.copy()  # what specsynth.tasks.Worker.frame does
+    origin = centre.copy()  # what specsynth.run.tasks.Worker.frame does
     ann = Annotator(W, H)
     try:
         ann.load(scene.translated(origin))
@@ -151,9 +151,9 @@ def test_depth_round_trip_and_overflow(scale):
 @pytest.mark.parametrize("defect", ["zero_area", "duplicate_vertices", "flipped_normals", "open_mesh"])
 def test_degenerate_meshes_load_without_nan(tmp_path, defect):
     """Property: a degenerate but non-empty mesh loads to finite geometry and normals (no NaN)."""
-    from specsynth.assets import resolve_objects
-    from specsynth.meshio import read_mesh
-    from specsynth.spec import Objects
+    from specsynth.assets.meshio import read_mesh
+    from specsynth.assets.resolve import resolve_objects
+    from specsynth.spec.models import Objects
 
     m = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
     v, f = m.vertices.copy(), m.faces.copy()
@@ -188,11 +188,11 @@ def test_nan_in_a_render_is_a_clear_error():
 
 def test_thirty_objects_on_a_small_stage_settle_or_are_reported(tmp_path):
     """Property: 30 objects on a 20x20 cm stage: every kept pose finite, kept + removed == dropped, bounded time."""
-    from specsynth.assets import ObjectAsset
-    from specsynth.ir import MaterialIR
+    from specsynth.assets.resolve import ObjectAsset
+    from specsynth.model.ir import MaterialIR
     from specsynth.physics import arrange
     from specsynth.scenes.types import SceneDesc, Stage
-    from specsynth.spec import Arrangements
+    from specsynth.spec.models import Arrangements
 
     table = trimesh.creation.box(extents=(0.6, 0.6, 0.04))
     tp = tmp_path / "table.ply"
@@ -201,7 +201,7 @@ def test_thirty_objects_on_a_small_stage_settle_or_are_reported(tmp_path):
     T[2, 3] = 0.70
     scene = SceneDesc(
         name="t", meshes=(MeshInstance(name="table", mesh_path=str(tp), mesh_key="table", pose=as_tuple(T)),),
-        lights=(), world=__import__("specsynth.ir", fromlist=["WorldIR"]).WorldIR(),
+        lights=(), world=__import__("specsynth.model.ir", fromlist=["WorldIR"]).WorldIR(),
         stages={"small": Stage("small", ((-0.1, -0.1), (0.1, -0.1), (0.1, 0.1), (-0.1, 0.1)), 0.72)},
     )
     box = trimesh.creation.box(extents=(0.04, 0.03, 0.02))

@@ -17,14 +17,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from specsynth.assets import ObjectAsset
-from specsynth.ir import MaterialIR
-from specsynth.meshio import MeshData, write_mesh
-from specsynth.records import ImageRecord, InstanceGT
-from specsynth.spec import DatasetSpec
-from specsynth.writers import write_outputs
-from specsynth.writers import dataset as dataset_mod
-from specsynth.writers.images import (
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.assets.resolve import ObjectAsset
+from specsynth.model.ir import MaterialIR
+from specsynth.model.records import ImageRecord, InstanceGT
+from specsynth.outputs import dataset as dataset_mod
+from specsynth.outputs import write_outputs
+from specsynth.outputs.images import (
     DepthOverflowError,
     encode_depth,
     write_exr,
@@ -32,6 +31,7 @@ from specsynth.writers.images import (
     write_mask,
     write_png,
 )
+from specsynth.spec.models import DatasetSpec
 
 W, H = 64, 48
 K = [[80.0, 0.0, 31.5], [0.0, 80.0, 23.5], [0.0, 0.0, 1.0]]
@@ -521,8 +521,8 @@ def test_outputs_switches(dataset, tmp_path):
 
 
 def test_build_without_masks_gives_box_only_coco(dataset, tmp_path):
-    from pycocotools.coco import COCO
     import pyarrow.parquet as pq
+    from pycocotools.coco import COCO
 
     models, images, _ = dataset
     bare = [(ImageRecord.from_json({**r.to_json(), "mask_files": [], "mask_visib_files": []}), s) for r, s in images]

@@ -20,16 +20,16 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
-from .. import assets
-from ..assets import AssetError
-from ..conventions import rpy_matrix
-from ..ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
-from ..meshio import MeshData, read_mesh
-from ..meshfiles import primitives as procedural
-from .. import meshfiles
-from ..library import furniture, textures
-from ..meshfiles.part import MeshFileError
-from ..meshfiles.sniff import check_mesh_file
+from ..assets import meshfiles
+from ..assets import resolve as assets
+from ..assets.library import furniture, textures
+from ..assets.meshfiles import primitives as procedural
+from ..assets.meshfiles.part import MeshFileError
+from ..assets.meshfiles.sniff import check_mesh_file
+from ..assets.meshio import MeshData, read_mesh
+from ..assets.resolve import AssetError
+from ..model.conventions import rpy_matrix
+from ..model.ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from . import autostage, filemeshes, furnish, gltfscene, random_room
 from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
 from .types import SceneDesc, Stage

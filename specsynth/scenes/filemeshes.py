@@ -18,9 +18,10 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
-from .. import assets, meshfiles
-from ..ir import MaterialIR
-from ..meshio import MeshData, atomic_write_bytes
+from ..assets import meshfiles
+from ..assets import resolve as assets
+from ..assets.meshio import MeshData, atomic_write_bytes
+from ..model.ir import MaterialIR
 from .models import SceneMesh
 
 PARTS_VERSION = 3  # 2: every PBR map, alpha, UV transform, wrap; 3: has_uv

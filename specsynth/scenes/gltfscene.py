@@ -1,6 +1,6 @@
 """A glTF/GLB file given directly as a scene: ``scenes: [{file: room.glb}]``.
 
-The file becomes a scene of one mesh (every material kept, see :mod:`specsynth.meshfiles`) with
+The file becomes a scene of one mesh (every material kept, see :mod:`specsynth.assets.meshfiles`) with
 stages found automatically. ``KHR_lights_punctual`` lights are imported with the photometric
 conversion Blender's glTF importer uses (683 lm/W):
 
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..meshfiles.gltf import gltf_json
-from ..meshfiles.part import Y_UP_TO_Z_UP, MeshFileError
+from ..assets.meshfiles.gltf import gltf_json
+from ..assets.meshfiles.part import Y_UP_TO_Z_UP, MeshFileError
 from .models import LightDef, SceneFile, SceneMesh, World
 
 LUMENS_PER_WATT = 683.0

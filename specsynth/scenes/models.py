@@ -218,7 +218,7 @@ class World(_Strict):
 
     color: Color | None = Field(None, description="Uniform linear RGB background radiance.")
     envmap: str | None = Field(
-        None, description="Built-in HDRI name (see specsynth.assets.builtin_hdris) or an HDR/EXR path."
+        None, description="Built-in HDRI name (see specsynth.assets.resolve.builtin_hdris) or an HDR/EXR path."
     )
     sky: Sky | None = None
     strength: float = Field(1.0, ge=0, description="Radiance multiplier.")

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..colour import kelvin_rgb
-from ..library import furniture, textures
+from ..assets.library import furniture, textures
+from ..model.colour import kelvin_rgb
 from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
 # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed. 3: room parameters,
@@ -220,7 +220,7 @@ def redress(rng, item: furniture.FurnitureItem, cache: Path, woods: list, felt) 
     """Domain randomisation of one piece: its plain (untextured) wood-like and fabric-like materials,
     told apart by their names, get a wood texture or a dyed felt, each with probability one half.
     -> (``materials:`` overrides by name, credits of the textures used)."""
-    from ..meshfiles import obj as obj_reader
+    from ..assets.meshfiles import obj as obj_reader
 
     overrides, credits = {}, []
     mats = obj_reader.materials_of(furniture.extract(item, cache))

@@ -11,9 +11,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..ir import LightIR, MaterialIR, MeshInstance, RenderScene
-from ..spec import SceneRandomization
-from ..colour import kelvin_rgb
+from ..model.colour import kelvin_rgb
+from ..model.ir import LightIR, MaterialIR, MeshInstance, RenderScene
+from ..spec.models import SceneRandomization
 
 
 def randomize_scene(scene: RenderScene, opts: SceneRandomization, rng: np.random.Generator,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..meshio import read_mesh
+from ..assets.meshio import read_mesh
 from .autostage import sample_triangles
 from .types import SceneDesc
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..ir import LightIR, MeshInstance, RenderScene, WorldIR
+from ..model.ir import LightIR, MeshInstance, RenderScene, WorldIR
 
 
 @dataclass(frozen=True)

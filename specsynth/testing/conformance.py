@@ -32,13 +32,22 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..assets.meshio import MeshData, mesh_bytes, write_mesh
 from ..backend_api import RenderBackend
+from ..model.colour import check_finite
+from ..model.ir import (
+    CameraIR,
+    LightIR,
+    MaterialIR,
+    MeshInstance,
+    RenderResult,
+    RenderScene,
+    WorldIR,
+    as_tuple,
+)
 from ..plugins import BackendPlugin, backend_plugin, load_backend
-from ..cameras import look_at
-from ..colour import check_finite
-from ..ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderResult, RenderScene, WorldIR, as_tuple
-from ..meshio import MeshData, mesh_bytes, write_mesh
-from ..spec import PAPER_PRESETS, BackendOptions
+from ..spec.models import PAPER_PRESETS, BackendOptions
+from ..views.cameras import look_at
 
 WIDTH, HEIGHT = 80, 60
 K = ((90.0, 0.0, 40.3), (0.0, 90.0, 28.7), (0.0, 0.0, 1.0))
@@ -310,7 +319,7 @@ def check_discovery(ctx: ConformanceContext) -> None:
     _require(plugin.name == ctx.name, ctx.name, f"the plugin registered as {ctx.name!r} calls itself {plugin.name!r}")
     opts = plugin.options
     _require(isinstance(opts, type) and issubclass(opts, BackendOptions), ctx.name,
-             "the plugin's options must subclass specsynth.spec.BackendOptions")
+             "the plugin's options must subclass specsynth.spec.models.BackendOptions")
     _require(opts.model_validate({"name": ctx.name}).name == ctx.name, ctx.name, "the options model rejects its own name")
     for field in ("denoise", "samples"):  # what every spec may carry when only backend.name is swapped
         _require(field in opts.model_fields, ctx.name, f"the options model drops the shared field {field!r}")

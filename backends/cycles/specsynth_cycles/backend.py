@@ -19,12 +19,19 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from specsynth.colour import check_finite, linear_to_srgb8
-from specsynth.conventions import c2w_during_exposure, opencv_to_blender_c2w
-from specsynth.ir import CameraIR, RenderResult, RenderScene
-from specsynth.spec import QualityPreset
+from specsynth.model.colour import check_finite, linear_to_srgb8
+from specsynth.model.conventions import c2w_during_exposure, opencv_to_blender_c2w
+from specsynth.model.ir import CameraIR, RenderResult, RenderScene
+from specsynth.spec.models import QualityPreset
 
-from .settings import PathSettings, blender_intrinsics, coerce_options, path_settings, resolve_threads, tbb_sized_to
+from .settings import (
+    PathSettings,
+    blender_intrinsics,
+    coerce_options,
+    path_settings,
+    resolve_threads,
+    tbb_sized_to,
+)
 
 __all__ = ["CyclesBackend"]
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from specsynth.ir import IDENTITY_UV, LightIR, MaterialIR, MeshInstance, WorldIR
-from specsynth.meshio import MeshData, read_mesh
+from specsynth.assets.meshio import MeshData, read_mesh
+from specsynth.model.ir import IDENTITY_UV, LightIR, MaterialIR, MeshInstance, WorldIR
 
 COLOR_ATTR = "Col"
 MAX_ENV_MAP_RESOLUTION = 1024

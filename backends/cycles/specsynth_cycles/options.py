@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from specsynth.spec import BackendOptions
+from specsynth.spec.models import BackendOptions
 
 
 class CyclesOptions(BackendOptions):

@@ -12,8 +12,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from specsynth.ir import CameraIR
-from specsynth.spec import QualityPreset
+from specsynth.model.ir import CameraIR
+from specsynth.spec.models import QualityPreset
 
 from .options import CyclesOptions
 

@@ -9,16 +9,17 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from specsynth.colour import check_finite, linear_to_srgb8
-from specsynth.conventions import cam_to_world, opencv_to_mitsuba_c2w
-from specsynth.ir import CameraIR, RenderResult, RenderScene
-from specsynth.meshio import MeshData, read_mesh
-from specsynth.spec import QualityPreset
+from specsynth.assets.meshio import MeshData, read_mesh
+from specsynth.model.colour import check_finite, linear_to_srgb8
+from specsynth.model.conventions import cam_to_world, opencv_to_mitsuba_c2w
+from specsynth.model.ir import CameraIR, RenderResult, RenderScene
+from specsynth.spec.models import QualityPreset
 
-from . import mapping, scene as scene_mod
+from . import mapping
+from . import scene as scene_mod
+from .options import MitsubaOptions
 from .sensor import PINHOLE, register_pinhole_sensor
 from .textures import register_product_texture
-from .options import MitsubaOptions
 from .variant import choose_variant
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from specsynth.spec import QualityPreset
+from specsynth.spec.models import QualityPreset
 
 # Mitsuba's envmap is Y-up with its own longitude origin; these rows make a Z-up world map the
 # equirectangular image the way Blender's world does (measured: a wrong choice costs ~7 dB).

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from specsynth.colour import srgb_to_linear
-from specsynth.ir import IDENTITY_UV, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR
-from specsynth.meshio import MeshData
+from specsynth.assets.meshio import MeshData
+from specsynth.model.colour import srgb_to_linear
+from specsynth.model.ir import IDENTITY_UV, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR
 
 from . import mapping
 from .textures import PRODUCT

@@ -26,7 +26,7 @@ along the axis, so that plane stays sharp. Both are traversable and opaque (a ne
 compiles nothing); whether there is a lens at all is fixed when the sensor is made. Likewise
 ``motion_translation`` / ``motion_rotation`` (Mitsuba-local, from shutter open to close): with
 ``shutter_close`` > 0 the ray's time t in [0, 1] moves and turns the camera by (t - 1/2) of them
-about its mid-exposure pose (``specsynth.conventions.c2w_during_exposure``).
+about its mid-exposure pose (``specsynth.model.conventions.c2w_during_exposure``).
 
 Like ``textures.py``, the class must derive from the *active variant's* ``mi.Sensor``, so it is
 made (and registered with Mitsuba's plugin registry) after ``mi.set_variant``.

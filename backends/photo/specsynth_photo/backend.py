@@ -16,18 +16,18 @@ from importlib import metadata
 from typing import Any, ClassVar
 
 import numpy as np
+from OpenGL.error import GLError  # noqa: E402  (after .gl, see above)
 
-from specsynth.augment import augment
-from specsynth.colour import linear_to_srgb
-from specsynth.conventions import cam_to_world, opencv_to_opengl_c2w
-from specsynth.ir import CameraIR, MeshInstance, RenderResult, RenderScene
-from specsynth.spec import QualityPreset
+from specsynth.model.colour import linear_to_srgb
+from specsynth.model.conventions import cam_to_world, opencv_to_opengl_c2w
+from specsynth.model.ir import CameraIR, MeshInstance, RenderResult, RenderScene
+from specsynth.spec.models import QualityPreset
+from specsynth.views.augment import augment
 
 from . import gl  # first: it selects the EGL platform before OpenGL is imported
 from .backgrounds import BackgroundError, BackgroundPool
 from .gl import pyrender
 from .options import PhotoOptions
-from OpenGL.error import GLError  # noqa: E402  (after .gl, see above)
 
 __all__ = ["PhotoBackend", "BackgroundError"]
 

@@ -20,8 +20,8 @@ from typing import Callable
 import numpy as np
 from PIL import Image
 
-from specsynth.assets import builtin_hdris, hdri_path
-from specsynth.colour import linear_to_srgb8
+from specsynth.assets.resolve import builtin_hdris, hdri_path
+from specsynth.model.colour import linear_to_srgb8
 
 # scikit-image sample images that are real photographs, with the file each needs. Only those whose
 # file ships inside the installed package are used, so nothing is ever fetched from the network.
@@ -72,7 +72,7 @@ def skimage_photo_names() -> list[str]:
 
 
 def hdri_paths() -> list[Path]:
-    """The HDR panoramas in the bpy wheel (``specsynth.assets`` finds them without importing bpy)."""
+    """The HDR panoramas in the bpy wheel (``specsynth.assets.resolve`` finds them without importing bpy)."""
     return [hdri_path(name) for name in builtin_hdris()]
 
 

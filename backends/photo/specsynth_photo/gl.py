@@ -21,10 +21,16 @@ from OpenGL.GL import (  # noqa: E402
 )
 from pyrender.renderer import Renderer  # noqa: E402
 
-from specsynth.colour import srgb_to_linear  # noqa: E402
-from specsynth.glutil import KCamera, discard_renderer, draw_in_name_order, release_renderer, texture_from_file  # noqa: E402,F401  (re-exported)
-from specsynth.ir import MaterialIR  # noqa: E402
-from specsynth.meshio import MeshData, read_mesh  # noqa: E402
+from specsynth.annotate.glutil import (  # noqa: E402,F401  (re-exported)
+    KCamera,
+    discard_renderer,
+    draw_in_name_order,
+    release_renderer,
+    texture_from_file,
+)
+from specsynth.assets.meshio import MeshData, read_mesh  # noqa: E402
+from specsynth.model.colour import srgb_to_linear  # noqa: E402
+from specsynth.model.ir import MaterialIR  # noqa: E402
 
 
 class SampledRenderer(Renderer):

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from specsynth.spec import Augment, BackendOptions, FloatRange, IntRange
+from specsynth.spec.models import Augment, BackendOptions, FloatRange, IntRange
 
 
 class PhotoOptions(BackendOptions):

@@ -1,7 +1,7 @@
 """``flat``: an example specsynth backend plugin that draws every mesh in its unlit base colour.
 
 What a plugin provides, all of it here:
-- an options model subclassing ``specsynth.spec.BackendOptions`` with ``name: Literal["flat"]``:
+- an options model subclassing ``specsynth.spec.models.BackendOptions`` with ``name: Literal["flat"]``:
   the spec's ``backend:`` block is validated by it (unknown keys are located errors);
 - a ``BackendPlugin`` object, registered under the ``specsynth.backends`` entry point, that is
   cheap to import (no OpenGL here): the compiler reads it without rendering anything;
@@ -13,7 +13,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from specsynth.plugins import BackendPlugin, Capabilities
-from specsynth.spec import BackendOptions
+from specsynth.spec.models import BackendOptions
 
 
 class FlatOptions(BackendOptions):

@@ -11,11 +11,16 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # headless: before OpenGL is 
 import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
 
-from specsynth.conventions import cam_to_world, opencv_to_opengl_c2w  # noqa: E402
-from specsynth.glutil import KCamera, draw_in_name_order, release_renderer, texture_from_file  # noqa: E402
-from specsynth.ir import CameraIR, MaterialIR, RenderResult, RenderScene  # noqa: E402
-from specsynth.meshio import read_mesh  # noqa: E402
-from specsynth.spec import QualityPreset  # noqa: E402
+from specsynth.annotate.glutil import (  # noqa: E402
+    KCamera,
+    draw_in_name_order,
+    release_renderer,
+    texture_from_file,
+)
+from specsynth.assets.meshio import read_mesh  # noqa: E402
+from specsynth.model.conventions import cam_to_world, opencv_to_opengl_c2w  # noqa: E402
+from specsynth.model.ir import CameraIR, MaterialIR, RenderResult, RenderScene  # noqa: E402
+from specsynth.spec.models import QualityPreset  # noqa: E402
 
 from . import FlatOptions  # noqa: E402
 

@@ -1,0 +1,1 @@
+"""Assets: one reader per mesh format into one mesh/material model, the built-in library, content-hashed caches."""

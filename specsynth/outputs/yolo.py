@@ -1,0 +1,209 @@
+"""Ultralytics YOLO export of a built dataset (``specsynth export yolo OUT DEST``).
+
+Reads only the BOP output (``bop/<split>/<chunk>/scene_gt*.json`` and ``rgb/``), so it works on
+any BOP-format folder. Writes the layout Ultralytics' ``check_det_dataset`` reads::
+
+    DEST/data.yaml                  names, train/val folders (relative: the folder can be moved)
+    DEST/images/<split>/<bop split>_<chunk>_<im_id>.<ext>   copies, never links into OUT
+    DEST/labels/<split>/<bop split>_<chunk>_<im_id>.txt     one "class cx cy w h" line per visible object
+
+Boxes are the visible (modal) boxes, in COCO's pixel convention (``w = xmax - xmin + 1``, pixel
+``i`` spanning ``[i, i + 1)``), normalised by the image size: what Ultralytics' own COCO
+converter produces. Class indices are 0-based in obj_id order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import yaml
+
+from .coco import coco_box
+from .dataset import place_file, write_if_changed
+from .qa import BopImage, list_images
+
+DEFAULT_MIN_VISIB = 0.1  # the COCO writer's "ignore" threshold: below it a box teaches noise
+_OURS = re.compile(r"^[A-Za-z0-9_\-]+_\d{6}_\d{6}\.(jpg|jpeg|png|txt)$")
+
+
+class ExportError(ValueError):
+    """A missing or unusable source, or a destination that is not ours to write."""
+
+
+@dataclass
+class YoloSummary:
+    images: dict[str, int] = field(default_factory=dict)  # per YOLO split
+    boxes: int = 0
+    skipped_low_visibility: int = 0
+    names: dict[int, str] = field(default_factory=dict)
+
+
+def yolo_line(cls: int, bbox_visib: Sequence[int], width: int, height: int) -> str:
+    """``class cx cy w h`` from a BOP visible box, normalised to [0, 1]."""
+    x, y, w, h = coco_box(bbox_visib)
+    cx, cy = (x + w / 2) / width, (y + h / 2) / height
+    return f"{cls} {cx:.6f} {cy:.6f} {w / width:.6f} {h / height:.6f}"
+
+
+def label_text(img: BopImage, class_of: dict[int, int], min_visib: float) -> tuple[str, int, int]:
+    """The label file of one image -> (text, boxes written, boxes skipped for low visibility)."""
+    width, height = _image_size(img)
+    lines, skipped = [], 0
+    for g, info in zip(img.gt, img.gt_info):
+        if info.get("px_count_visib", 0) < 1 or info["bbox_visib"][2] < 0:
+            continue
+        if info.get("visib_fract", 1.0) < min_visib:
+            skipped += 1
+            continue
+        lines.append(yolo_line(class_of[int(g["obj_id"])], info["bbox_visib"], width, height))
+    return "".join(line + "\n" for line in lines), len(lines), skipped
+
+
+def _image_size(img: BopImage) -> tuple[int, int]:
+    from PIL import Image
+
+    with Image.open(img.rgb) as im:
+        return im.size
+
+
+def class_names(out: Path, images: Sequence[BopImage]) -> dict[int, str]:
+    """obj_id -> name: every model in ``models_info.json`` (so indices do not depend on which
+    objects happened to be seen), names from the COCO categories when the build wrote them."""
+    bop = out / "bop"
+    ids: set[int] = {int(g["obj_id"]) for img in images for g in img.gt}
+    info = bop / "models" / "models_info.json"
+    if info.is_file():
+        ids |= {int(k) for k in _read_json(info)}
+    names = {i: f"obj_{i:06d}" for i in sorted(ids)}
+    for coco in sorted((out / "coco").glob("*.json")):
+        for cat in _read_json(coco).get("categories", []):
+            if int(cat["id"]) in names:
+                names[int(cat["id"])] = str(cat["name"])
+    return names
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise ExportError(f"{path}: unreadable JSON ({type(e).__name__})") from None
+
+
+def arrangement_of(out: Path) -> dict[str, int]:
+    """rgb path (relative to OUT) -> arrangement, from the Parquet images table when it exists,
+    so that a held-out split never shares an arrangement with the training split."""
+    table = out / "parquet" / "images.parquet"
+    if not table.is_file():
+        return {}
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(table, columns=["rgb", "arr"]).to_pydict()
+    return dict(zip(t["rgb"], t["arr"]))
+
+
+def held_out(keys: Sequence[str], fraction: float) -> set[str]:
+    """A deterministic ``fraction`` of ``keys`` (at least one when fraction > 0), by hash order."""
+    if fraction <= 0 or not keys:
+        return set()
+    ranked = sorted(set(keys), key=lambda k: hashlib.sha256(k.encode()).hexdigest())
+    n = max(1, round(fraction * len(ranked)))
+    return set(ranked[:n])
+
+
+def _yolo_split(img: BopImage, val_split: str | None, val_groups: set[str], group_of) -> str:
+    split = img.chunk.parent.name
+    if val_split is not None:
+        return "val" if split == val_split else split
+    return "val" if group_of(img) in val_groups else split
+
+
+def _check_dest(dest: Path, out: Path) -> None:
+    if dest.is_symlink():
+        raise ExportError(f"{dest}: is a symbolic link; give a real folder")
+    if dest.resolve() == out.resolve() or out.resolve() in dest.resolve().parents:
+        raise ExportError(f"{dest}: must not be inside the dataset folder {out}")
+    if dest.exists() and any(dest.iterdir()) and not (dest / "data.yaml").is_file():
+        raise ExportError(f"{dest}: exists and is not a YOLO export (no data.yaml); give an empty or new folder")
+
+
+def export_yolo(
+    out: Path, dest: Path, *, min_visib: float = DEFAULT_MIN_VISIB, val_split: str | None = None,
+    val_fraction: float = 0.0,
+) -> YoloSummary:
+    out, dest = Path(out), Path(dest)
+    if not 0.0 <= val_fraction < 1.0:
+        raise ExportError(f"--val-fraction {val_fraction}: must be in [0, 1)")
+    if not (out / "bop").is_dir():
+        raise ExportError(f"{out}: no bop/ folder (build with outputs.bop: true)")
+    _check_dest(dest, out)
+    images = list_images(out)
+    if not images:
+        raise ExportError(f"{out / 'bop'}: no images")
+    splits = {img.chunk.parent.name for img in images}
+    if val_split is not None and val_split not in splits:
+        raise ExportError(f"--val {val_split!r}: no such split in {out / 'bop'} (have {', '.join(sorted(splits))})")
+
+    names = class_names(out, images)
+    class_of = {obj_id: i for i, obj_id in enumerate(sorted(names))}
+    arr = arrangement_of(out)
+
+    def group_of(img: BopImage) -> str:
+        rel = img.rgb.relative_to(out).as_posix()
+        return f"{img.chunk.parent.name}/arr={arr[rel]}" if rel in arr else rel
+
+    val_groups = held_out([group_of(i) for i in images], val_fraction) if val_split is None else set()
+    summary = YoloSummary(names={class_of[i]: n for i, n in names.items()})
+    keep: dict[str, set[str]] = defaultdict(set)
+    for img in images:
+        split = _yolo_split(img, val_split, val_groups, group_of)
+        stem = f"{img.chunk.parent.name}_{int(img.chunk.name):06d}_{img.im_id:06d}"
+        text, n, skipped = label_text(img, class_of, min_visib)
+        place_file(img.rgb, dest / "images" / split / (stem + img.rgb.suffix.lower()))
+        write_if_changed(dest / "labels" / split / f"{stem}.txt", text.encode())
+        keep[split] |= {stem + img.rgb.suffix.lower(), f"{stem}.txt"}
+        summary.images[split] = summary.images.get(split, 0) + 1
+        summary.boxes += n
+        summary.skipped_low_visibility += skipped
+    _remove_stale(dest, keep)
+    write_if_changed(dest / "data.yaml", data_yaml(summary, out, min_visib))
+    return summary
+
+
+def data_yaml(summary: YoloSummary, out: Path, min_visib: float) -> bytes:
+    splits = sorted(summary.images)
+    train = [s for s in splits if s != "val"]
+    val = "val" if "val" in splits else train[0]
+    doc = {
+        # No 'path': Ultralytics then resolves the folders against this file's own folder.
+        "train": [f"images/{s}" for s in train] if len(train) > 1 else f"images/{train[0]}",
+        "val": f"images/{val}",
+        "nc": len(summary.names),
+        "names": summary.names,
+    }
+    head = (
+        f"# Written by specsynth export yolo from {out.name}: visible boxes of objects at least "
+        f"{min_visib:g} visible.\n"
+    )
+    if "val" not in splits:
+        head += "# No held-out split (see --val / --val-fraction): val is the training split.\n"
+    return (head + yaml.safe_dump(doc, sort_keys=False)).encode()
+
+
+def _remove_stale(dest: Path, keep: dict[str, set[str]]) -> None:
+    """Files of a previous export that this one no longer has (only names this writer makes)."""
+    for kind in ("images", "labels"):
+        root = dest / kind
+        if not root.is_dir():
+            continue
+        for folder in root.iterdir():
+            if not folder.is_dir() or folder.is_symlink():
+                continue
+            for p in folder.iterdir():
+                if _OURS.match(p.name) and p.name not in keep.get(folder.name, set()):
+                    p.unlink()

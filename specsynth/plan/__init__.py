@@ -1,0 +1,1 @@
+"""Compiling: spec to a lazy, deterministic job graph; content keys and seeds. Never touches a renderer."""

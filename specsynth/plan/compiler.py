@@ -1,0 +1,288 @@
+"""Spec -> job graph. Imports no renderer, simulator or executor (enforced by import-linter).
+
+The graph is lazy: jobs are generated from (arrangement, camera) indices on demand, so a spec with
+a million images compiles in seconds and little memory. Every job has a stable id, a seed that
+depends only on the root seed and that id (``specsynth.plan.seeds``), and a content key
+(``specsynth.plan.keys``) over exactly the inputs it reads.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+from ..assets.resolve import (
+    AssetError,
+    builtin_objects,
+    check_texture,
+    expand_path,
+    file_digest,
+    object_fingerprints,
+)
+from ..plugins import backend_plugin, dist_version
+from ..scenes import declares_stages, scene_fingerprint, stage_table
+from ..spec.models import DatasetSpec
+from ..spec.yamlio import LoadedSpec, SpecError
+from . import keys, seeds
+
+STAGES = ("arrange", "view", "render")
+
+# Which spec fields (dotted paths) each stage reads. A change anywhere else never re-runs it.
+STAGE_FIELDS = {
+    "arrange": ("seed", "objects", "scenes", "arrangements"),
+    "view": ("cameras", "visibility", "intrinsics"),
+    "render": (
+        "quality",
+        "backend",
+        "intrinsics",
+        "visibility.delta",
+        "outputs.image_format",
+        "outputs.jpeg_quality",
+        "outputs.depth",
+        "outputs.depth_scale",
+        "outputs.masks",
+        "outputs.exr",
+        "outputs.normals",
+        "outputs.nocs",
+        "outputs.albedo",
+        "sensor",
+    ),
+}
+
+# Guards on work and memory, checked before anything runs (overridable: the estimate is rough).
+MAX_IMAGES = 100_000_000
+BYTES_PER_PIXEL = 200  # per worker: renderer film and passes (~160 B/px in Cycles) + annotation buffers
+MAX_WORKER_BYTES = 8 << 30
+
+
+def _limit(env: str, default: float) -> float:
+    value = os.environ.get(env)
+    try:
+        return float(value) if value else default
+    except ValueError:
+        return default
+
+
+def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
+    """Located problems for a plan or an image too large to build on purpose."""
+    problems = []
+    images = spec.arrangements.count * spec.cameras.per_arrangement
+    max_images = _limit("SPECSYNTH_MAX_IMAGES", MAX_IMAGES)
+    if images > max_images:
+        problems.append(loaded.locate("arrangements.count", f"{images:,} images planned, over the limit of "
+                                      f"{int(max_images):,} (set SPECSYNTH_MAX_IMAGES to raise it)"))
+    px = spec.intrinsics.width * spec.intrinsics.height
+    need = px * BYTES_PER_PIXEL
+    max_bytes = _limit("SPECSYNTH_MAX_WORKER_GB", MAX_WORKER_BYTES / (1 << 30)) * (1 << 30)
+    if need > max_bytes:
+        problems.append(loaded.locate("intrinsics.width", f"a {spec.intrinsics.width} x {spec.intrinsics.height} image "
+                                      f"needs about {need / (1 << 30):.1f} GiB per worker ({BYTES_PER_PIXEL} B/pixel), over "
+                                      f"the limit of {max_bytes / (1 << 30):.1f} GiB (set SPECSYNTH_MAX_WORKER_GB to raise it)"))
+    return problems
+
+
+def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
+    """Located problems for a camera effect the spec's backend cannot render."""
+    problems = []
+    caps = backend_plugin(spec.backend.name).capabilities
+    for name, what in (("depth_of_field", "depth of field"), ("motion_blur", "motion blur")):
+        if getattr(spec.cameras, name) is not None and not getattr(caps, name):
+            problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
+                                          f"plugin does not declare it); remove {name} or use one that does "
+                                          "(`specsynth backends`)"))
+    return problems
+
+
+def arr_id(arr: int) -> str:
+    return f"arr={arr:06d}"
+
+
+def view_id(arr: int, cam: int) -> str:
+    return f"arr={arr:06d}/cam={cam:03d}"
+
+
+def render_id(arr: int, cam: int) -> str:
+    return f"arr={arr:06d}/cam={cam:03d}/render"
+
+
+@dataclass(frozen=True)
+class Job:
+    stage: str
+    id: str
+    key: str
+    root_seed: int
+    arr: int
+    cam: int | None = None
+    upstream: str | None = None  # key of the job this one reads
+
+    @property
+    def seed(self) -> int:
+        # Derived on demand: planning a million jobs never needs their seeds.
+        return seeds.job_seed(self.root_seed, self.id)
+
+
+def backend_fingerprint(name: str) -> str:
+    """Backend name and the versions of what it renders with, without importing the renderer."""
+    return backend_plugin(name).fingerprint()
+
+
+def _field(data: dict, dotted: str):
+    cur = data
+    for part in dotted.split("."):
+        cur = cur[part]
+    return cur
+
+
+def _folder_listing_digest(folder: Path, base: Path) -> str:
+    """Names, sizes and mtimes of a folder's files: cheap, and changes when a photo changes."""
+    root = folder if folder.is_absolute() else base / folder
+    if not root.is_dir():
+        return f"missing:{root}"
+    entries = sorted((str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file())
+    return keys.digest(entries)
+
+
+@dataclass(frozen=True)
+class JobGraph:
+    spec: DatasetSpec
+    spec_path: Path
+    stage_inputs: dict[str, dict[str, str]]  # stage -> input name -> digest (for diff attribution)
+    stage_digests: dict[str, str]
+    asset_hashes: dict[str, str]
+    backend: str
+    # Content hash of each spec.scenes entry: an arrangement's key holds only its own scene's, so
+    # editing one scene's texture re-runs exactly the arrangements drawn in that scene.
+    scene_keys: tuple[str, ...] = ()
+
+    @property
+    def n_arrangements(self) -> int:
+        return self.spec.arrangements.count
+
+    @property
+    def cams_per_arrangement(self) -> int:
+        return self.spec.cameras.per_arrangement
+
+    @property
+    def n_views(self) -> int:
+        return self.n_arrangements * self.cams_per_arrangement
+
+    def arrange_job(self, arr: int) -> Job:
+        jid = arr_id(arr)
+        scene = 0
+        if len(self.scene_keys) > 1:  # ~26 us a job: only when there is a choice
+            scene = seeds.scene_draw(self.spec.seed, jid, [s.weight for s in self.spec.scenes])[0]
+        up = self.scene_keys[scene] if self.scene_keys else None
+        return Job("arrange", jid, keys.job_key(self.stage_digests["arrange"], jid, up), self.spec.seed, arr)
+
+    def view_job(self, arr: int, cam: int, arrange_key: str | None = None) -> Job:
+        jid = view_id(arr, cam)
+        up = arrange_key or self.arrange_job(arr).key
+        return Job("view", jid, keys.job_key(self.stage_digests["view"], jid, up), self.spec.seed, arr, cam, up)
+
+    def render_job(self, arr: int, cam: int, view_key: str | None = None) -> Job:
+        jid = render_id(arr, cam)
+        up = view_key or self.view_job(arr, cam).key
+        return Job("render", jid, keys.job_key(self.stage_digests["render"], jid, up), self.spec.seed, arr, cam, up)
+
+    def arrangement_jobs(self, arr: int) -> tuple[Job, list[Job], list[Job]]:
+        a = self.arrange_job(arr)
+        views = [self.view_job(arr, c, a.key) for c in range(self.cams_per_arrangement)]
+        renders = [self.render_job(arr, v.cam, v.key) for v in views]
+        return a, views, renders
+
+    def jobs(self) -> Iterator[Job]:
+        for arr in range(self.n_arrangements):
+            a, views, renders = self.arrangement_jobs(arr)
+            yield a
+            yield from views
+            yield from renders
+
+    def summary(self) -> dict:
+        return {
+            "spec": str(self.spec_path),
+            "name": self.spec.name,
+            "backend": self.backend,
+            "stages": {
+                "arrange": self.n_arrangements,
+                "view": self.n_views,
+                "render": self.n_views,
+            },
+            "stage_digests": self.stage_digests,
+        }
+
+
+def compile_spec(loaded: LoadedSpec) -> JobGraph:
+    """Resolve asset and scene fingerprints and derive the per-stage input digests."""
+    spec = loaded.spec
+    data = spec.model_dump(mode="json")
+    problems = check_budgets(spec, loaded) + check_capabilities(spec, loaded)
+    if problems:  # before hashing assets or loading scenes: refusing is the cheap part
+        raise SpecError(problems)
+    try:
+        asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
+    except AssetError as e:
+        field = getattr(e, "field", None) or ("objects.path" if "objects.path" in str(e) else "objects")
+        problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))
+        asset_hashes = {}
+    # Files the spec names only by path: their bytes, not their names, go into the keys.
+    for key, mat in spec.objects.materials.items():
+        if mat.texture is None:
+            continue
+        field = f"objects.materials.{key}.texture"
+        try:
+            tex = expand_path(mat.texture, loaded.directory, field)
+            asset_hashes[f"texture:{key}"] = file_digest(tex, field)
+            check_texture(tex, field)
+        except AssetError as e:
+            problems.append(loaded.locate(field, str(e)))
+    known = set(builtin_objects())
+    for k, name in enumerate(spec.arrangements.distractors.objects):
+        if name != "random_urdfs/*" and name not in known:
+            field = f"arrangements.distractors.objects.{k}"
+            problems.append(loaded.locate(field, f"unknown built-in object {name!r} (see specsynth.assets.resolve.builtin_objects)"))
+    scene_hashes = {}
+    for i, ref in enumerate(spec.scenes):
+        try:
+            scene_hashes[f"scene:{ref.ref}"] = scene_fingerprint(ref, loaded.directory)
+            if ref.stages and declares_stages(ref, loaded.directory):
+                # Found stages depend on the objects' sizes: their names are checked when the scene loads.
+                known = {st.name for st, _, _ in stage_table(ref, loaded.directory)}
+                unknown = [n for n in ref.stages if n not in known]
+                if unknown:
+                    problems.append(loaded.locate(f"scenes.{i}.stages", f"scene {ref.ref!r} has no stage(s) {unknown}; it has {sorted(known)}"))
+        except (AssetError, ValueError, FileNotFoundError) as e:
+            problems.append(loaded.locate(f"scenes.{i}.{'name' if ref.name else 'file'}", str(e)))
+    if problems:
+        raise SpecError(problems)
+
+    stage_inputs: dict[str, dict[str, str]] = {}
+    for stage, fields in STAGE_FIELDS.items():
+        inputs = {f"spec:{f}": keys.digest(_field(data, f)) for f in fields}
+        stage_inputs[stage] = inputs
+    stage_inputs["arrange"].update(asset_hashes)
+    stage_inputs["view"]["annotator"] = f"pyrender {dist_version('pyrender')}"
+    backend = backend_fingerprint(spec.backend.name)
+    stage_inputs["render"]["backend"] = backend
+    for option, folder in spec.backend.input_folders().items():
+        try:
+            root = expand_path(folder, loaded.directory, f"backend.{option}")
+        except AssetError as e:
+            raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
+        if not root.is_dir():
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} not found ({root})")])
+        if not any(p.is_file() for p in root.rglob("*")):
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
+        stage_inputs["render"][f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
+    stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
+    stage_inputs["arrange"].update(scene_hashes)  # for diff attribution; keyed per job (arrange_job)
+    return JobGraph(
+        spec=spec,
+        spec_path=loaded.path,
+        stage_inputs=stage_inputs,
+        stage_digests=stage_digests,
+        asset_hashes={**asset_hashes, **scene_hashes},
+        backend=backend,
+        scene_keys=tuple(scene_hashes[f"scene:{ref.ref}"] for ref in spec.scenes),
+    )

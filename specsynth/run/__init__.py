@@ -1,0 +1,1 @@
+"""Running a compiled graph: build orchestration, worker tasks, executors, the content-addressed store, bench."""

@@ -1,0 +1,342 @@
+"""`specsynth bench`: render time against image error, per backend and setting.
+
+For the first N accepted views of a spec, every installed PBR backend renders each quality level
+(with/without denoising and adaptive sampling where the backend has them) and a converged
+reference (``ref_factor`` x the high preset's samples, independent seed). Error is measured against
+the backend's own reference: relMSE on linear radiance, PSNR and SSIM on 8-bit sRGB.
+"""
+
+from __future__ import annotations
+
+import csv
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..model.records import ArrangementRecord, ViewRecord
+from ..plan.compiler import JobGraph
+from ..plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_backend_plugins
+from ..spec.models import PAPER_PRESETS, QualityPreset
+from .build import build
+from .store import Store, write_json
+
+
+@dataclass
+class Setting:
+    backend: str
+    label: str
+    level: str
+    options: dict  # updates to the backend's spec options
+    reference: bool = False
+
+
+@dataclass
+class Row:
+    backend: str
+    setting: str
+    level: str
+    seconds: float
+    rel_mse: float
+    psnr: float
+    ssim: float
+    samples: int
+    phases: dict = None  # mean seconds per backend phase (RenderResult.stats["phases"])
+
+
+LEVELS = ("low", "medium", "high")
+
+
+def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...] = LEVELS,
+                 ladder: bool = False) -> list[Setting]:
+    """Each quality level plain and with each of the plugin's own bench variants, then a reference.
+    ``ladder``: also the level's light paths at 1, 2, 4, ... samples (fewer than its own) with
+    denoising, where a denoising backend reaches the level's error for less (the calibration)."""
+    out = []
+    for level in levels:
+        out.append(Setting(plugin.name, f"{level}", level, {}))
+        if plugin.calibrated.get(level):
+            out.append(Setting(plugin.name, f"{level}+calibrated", level, dict(plugin.calibrated[level])))
+        for suffix, options in plugin.bench_variants:
+            out.append(Setting(plugin.name, f"{level}+{suffix}", level, dict(options)))
+        if ladder and plugin.capabilities.denoise:
+            own = PAPER_PRESETS[level].samples
+            n = 1
+            while n < own:
+                out.append(Setting(plugin.name, f"{level}+denoise@{n}", level, {"denoise": True, "samples": n}))
+                n *= 2
+    out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor}, reference=True))
+    return out
+
+
+def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
+    return float(np.mean((x - ref) ** 2 / (ref**2 + 1e-2)))
+
+
+def psnr8(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10 * np.log10(255.0**2 / mse)
+
+
+def ssim8(a: np.ndarray, b: np.ndarray) -> float:
+    from skimage.metrics import structural_similarity
+
+    return float(structural_similarity(a, b, channel_axis=2, data_range=255))
+
+
+def _views(graph: JobGraph, out: Path, n: int):
+    """Arrangements and the first n accepted views, built (and cached) in ``out``; and what the
+    camera stage and its cache saved (see ``camera_savings``)."""
+    first = _timed_view_build(graph, out)
+    cached = _timed_view_build(graph, out)  # everything is in the store now: what a rebuild costs
+    store = Store(out)
+    picked = []
+    for arr in range(graph.n_arrangements):
+        a, views, _ = graph.arrangement_jobs(arr)
+        if not store.has("arrange", a.key):
+            continue
+        arec = ArrangementRecord.from_json(store.load("arrange", a.key))
+        for v in views:
+            if store.has("view", v.key):
+                vrec = ViewRecord.from_json(store.load("view", v.key))
+                if vrec.accepted:
+                    picked.append((arec, vrec, v.seed))
+            if len(picked) >= n:
+                return picked, (first, cached)
+    return picked, (first, cached)
+
+
+def _timed_view_build(graph: JobGraph, out: Path) -> dict:
+    """Build arrangements and cameras; the first real run's numbers are kept next to the store, so
+    a later bench into the same folder still knows what the cached jobs cost."""
+    import json
+
+    t0 = time.perf_counter()
+    s = build(graph, out, jobs=1, until="view")
+    wall = time.perf_counter() - t0
+    ran = s.stages["arrange"].ran + s.stages["view"].ran
+    info = {"wall": wall, "jobs": s.stages["arrange"].total + s.stages["view"].total, "ran": ran,
+            "worker_seconds": s.stages["arrange"].seconds + s.stages["view"].seconds,
+            "cameras": s.stages["view"].total, "rejected": s.cameras_rejected, "rejected_seconds": s.rejected_seconds}
+    meta = Path(out) / ".specsynth" / "bench_views.json"
+    if ran:
+        write_json(meta, info)
+    elif meta.exists():
+        return {**json.loads(meta.read_text()), "wall": wall, "ran": 0, "cached_wall": wall}
+    return info
+
+
+@dataclass
+class Saving:
+    backend: str
+    what: str
+    seconds: float  # saved, per the unit in ``per``
+    per: str
+    how: str  # what was measured
+
+
+def camera_savings(backend: str, rows: list[Row], level: str, cams: tuple[dict, dict], load_s: float,
+                   per_arrangement: int) -> list[Saving]:
+    """Skipping, priced with this bench's own measurements on this backend."""
+    first, cached = cams
+    render = next((r.seconds for r in rows if r.backend == backend and r.setting == level), float("nan"))
+    out = [
+        Saving(backend, "visibility pre-check", first["rejected"] * render - first["rejected_seconds"], "view build",
+               f"{first['rejected']} sampled cameras rejected for {first['cameras']} view jobs "
+               f"({first['rejected_seconds']:.2f} s of checks) x {render:.2f} s per '{level}' render"),
+        Saving(backend, "scene loaded once per arrangement", (per_arrangement - 1) * load_s, "arrangement",
+               f"({per_arrangement} cameras - 1) x {load_s:.2f} s scene load (median)"),
+    ]
+    if cached["ran"] == 0 and first.get("worker_seconds", 0) > 0:  # unknown when cached by an older bench
+        out.append(Saving(backend, "cache", first["worker_seconds"] - cached["wall"], "rebuild of the views",
+                          f"{first['jobs']} arrange/view jobs: {first['worker_seconds']:.2f} s first run, "
+                          f"{cached['wall']:.2f} s rebuild (all cached)"))
+    return out
+
+
+def toggle_saving(plugin: BackendPlugin, label: str, option: str, base_opts: dict, spec, picked, worker, preset,
+                  repeats: int) -> Saving:
+    """The same views rendered with a boolean backend option on and off."""
+    cls = plugin.load_class()
+    times: dict[bool, list[float]] = {True: [], False: []}
+    for arec, vrec, seed in picked:
+        scene = worker.render_scene(arec)
+        cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
+        for on in (True, False, False, True) * max(1, repeats):  # alternate: the first render after a load is slower
+            backend = cls(plugin.options.model_validate({**base_opts, option: on}), threads=0)
+            backend.load(scene)
+            backend.render(cam, preset, seed, clamp=spec.quality.clamp)  # warm
+            t0 = time.perf_counter()
+            backend.render(cam, preset, seed, clamp=spec.quality.clamp)
+            times[on].append(time.perf_counter() - t0)
+            backend.close()
+    on, off = statistics.median(times[True]), statistics.median(times[False])
+    return Saving(plugin.name, label, off - on, "render",
+                  f"median {on:.2f} s with {option} vs {off:.2f} s without, {len(picked)} view(s)")
+
+
+def scaled_intrinsics(intr, scale: float):
+    """The same camera at another resolution (pixel centres kept: OpenCV's +0.5 convention)."""
+    return intr.model_copy(update={
+        "width": max(8, round(intr.width * scale)), "height": max(8, round(intr.height * scale)),
+        "fx": intr.fx * scale, "fy": intr.fy * scale, "cx": (intr.cx + 0.5) * scale - 0.5, "cy": (intr.cy + 0.5) * scale - 0.5,
+    })
+
+
+def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
+              scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
+              ladder: bool = False) -> list[Row]:
+    from ..outputs.images import write_png
+    from .tasks import BuildContext, Worker
+
+    out = Path(out)
+    spec = graph.spec
+    intr = spec.intrinsics
+    small = scaled_intrinsics(intr, scale)
+    picked, cams = _views(graph, out, n_views)
+    if not picked:
+        raise RuntimeError("no accepted view to benchmark; widen the camera ranges")
+    names = backends or [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
+    rows: list[Row] = []
+    savings: list[Saving] = []
+    for name in names:
+        try:
+            plugin = backend_plugin(name)
+            cls = plugin.load_class()
+        except PluginNotFound as e:
+            if console:
+                console.print(f"[yellow]skipping {name}: {e}[/yellow]")
+            continue
+        # The spec's own options for this backend, minus what the bench varies (denoise, samples).
+        base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
+        worker = Worker(BuildContext(spec=spec.model_copy(update={"intrinsics": small}), spec_dir=graph.spec_path.parent, out=out))
+        refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        settings = settings_for(plugin, ref_factor, levels, ladder)
+        settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
+        for st in settings:
+            opts = dict(base_opts)
+            opts.update({k: v for k, v in st.options.items() if not k.startswith("__")})
+            preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
+            if st.reference:
+                f = st.options["__factor__"]  # every ray count: backends take samples from their max
+                preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * f,
+                                          "diffuse_rays": preset.diffuse_rays * f, "specular_rays": preset.specular_rays * f})
+            backend = cls(plugin.options.model_validate(opts), threads=0)
+            times, errs, loads, phase_sums = [], [], [], {}
+            samples = 0
+            for i, (arec, vrec, seed) in enumerate(picked):
+                scene = worker.render_scene(arec)
+                t0 = time.perf_counter()
+                backend.load(scene)
+                loads.append(time.perf_counter() - t0)
+                cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
+                ts = []
+                if i == 0 and not st.reference:
+                    # Untimed: the first render of a setting compiles kernels (Dr.Jit, per sampler and
+                    # spp) or syncs the scene (Cycles); a dataset renders thousands after it.
+                    backend.render(cam, preset, seed, clamp=spec.quality.clamp)
+                for r in range(repeats if not st.reference else 1):
+                    t0 = time.perf_counter()
+                    res = backend.render(cam, preset, seed + (7919 if st.reference else 0), clamp=spec.quality.clamp)
+                    ts.append(time.perf_counter() - t0)
+                times.append(statistics.median(ts))
+                samples = int(res.stats.get("samples", res.stats.get("spp", 0)))
+                for k, v in (res.stats.get("phases") or {}).items():
+                    phase_sums[k] = phase_sums.get(k, 0.0) + v / len(picked)
+                lin = res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255
+                if st.reference:
+                    refs[i] = (lin, res.rgb)
+                    write_png(out / "bench" / f"{name}_ref_{i}.png", res.rgb)
+                    continue
+                ref_lin, ref_rgb = refs[i]
+                errs.append((rel_mse(lin, ref_lin), psnr8(res.rgb, ref_rgb), ssim8(res.rgb, ref_rgb)))
+                if i == 0:
+                    write_png(out / "bench" / f"{name}_{st.label}_{i}.png", res.rgb)
+            backend.close()
+            phases = {k: round(v, 4) for k, v in phase_sums.items()}
+            if st.reference:
+                rows.append(Row(name, st.label, st.level, float(np.mean(times)), 0.0, float("inf"), 1.0, samples, phases))
+            else:
+                e = np.mean(np.asarray(errs), axis=0)
+                rows.append(Row(name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]),
+                                samples, phases))
+            if console:
+                r = rows[-1]
+                console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
+        level = spec.quality.paper_level
+        savings += camera_savings(name, rows, level, cams, statistics.median(loads), spec.cameras.per_arrangement)
+        preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
+        for label, option in plugin.bench_toggles:
+            savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, worker, preset, repeats))
+        worker.close()
+    write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
+    return rows, savings
+
+
+def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:
+    """Per backend: the fastest setting reaching the plain ``level`` preset's PSNR, and its speed-up."""
+    out = {}
+    for b in sorted({r.backend for r in rows}):
+        rs = [r for r in rows if r.backend == b and r.setting != "reference"]
+        plain = next((r for r in rs if r.setting == level), None)
+        if plain is None:
+            continue
+        ok = [r for r in rs if r.psnr >= plain.psnr - 1e-9]
+        best = min(ok, key=lambda r: r.seconds)
+        out[b] = {"target_psnr": round(plain.psnr, 2), "fastest": best.setting, "seconds": round(best.seconds, 2),
+                  "speedup_vs_high" if level == "high" else "speedup": round(plain.seconds / best.seconds, 2)}
+    return out
+
+
+def _finite(x):
+    """JSON has no inf/NaN (a reference's PSNR, a saving not measured in this run): null instead."""
+    if isinstance(x, float):
+        return x if np.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def write_report(rows: list[Row], out: Path, graph: JobGraph, savings: list[Saving] = (), **meta) -> None:
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "bench.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["backend", "setting", "level", "seconds", "rel_mse", "psnr_db", "ssim", "samples"])
+        for r in rows:
+            w.writerow([r.backend, r.setting, r.level, f"{r.seconds:.3f}", f"{r.rel_mse:.4e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}", r.samples])
+    equal = equal_error_speedups(rows)
+    (out / "bench.json").write_text(json.dumps(_finite({
+        "meta": {**meta, "spec": str(graph.spec_path)},
+        # per backend: plain 'high' seconds / seconds of the cheapest setting reaching its PSNR
+        "equal_error_speedup": {b: e["speedup_vs_high"] for b, e in equal.items()},
+        "equal_error": equal,
+        # per backend and paper level: the cheapest setting reaching that level's error
+        "calibration": {lv: equal_error_speedups(rows, lv) for lv in LEVELS if any(r.setting == lv for r in rows)},
+        "rows": [vars(r) for r in rows],
+        "savings": [vars(x) for x in savings]}), indent=2, allow_nan=False) + "\n")
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for b, colour in zip(sorted({r.backend for r in rows}), ("tab:blue", "tab:orange", "tab:green")):
+        rs = [r for r in rows if r.backend == b and r.setting != "reference"]
+        ax.scatter([r.seconds for r in rs], [r.psnr for r in rs], color=colour, label=b)
+        for r in rs:
+            ax.annotate(r.setting, (r.seconds, r.psnr), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_xlabel("seconds per image (median)")
+    ax.set_ylabel("PSNR vs converged reference [dB]")
+    ax.set_title(f"time vs error, {meta.get('n_views')} view(s) at scale {meta.get('scale')}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "bench.png", dpi=90)
+    plt.close(fig)

@@ -1,0 +1,105 @@
+"""The camera's sensor and processing, applied after rendering: the same in every backend.
+
+RGB: auto white balance divides out the colour of the light in view (the render over the view's
+albedo: what a camera's AWB estimates, here known exactly) and auto exposure meters the image to
+middle grey; then exposure and white-balance errors scale the linear radiance, then shot noise
+(std proportional to the square root of the signal) and read noise (constant std) are added, all
+in linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
+light sensor's errors on a copy of the exact depth (axial noise growing with z², holes at depth
+jumps, random dropout, quantisation). Every draw comes from the generator passed in, which the
+caller seeds from the render job: the same job gives the same noise on every machine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.colour import kelvin_rgb, linear_to_srgb8, srgb_to_linear
+from ..spec.models import DepthSensor, Sensor
+
+REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
+AWB_GAINS = (0.2, 5.0)  # a camera's AWB range: about 2000 K to 12000 K under one light
+MIDDLE_GREY = 0.18
+AE_RANGE = (1.0 / 16.0, 16.0)
+
+
+def illuminant(linear: np.ndarray, albedo: np.ndarray, clipped: float = np.inf) -> np.ndarray | None:
+    """The colour of the light in view (linear RGB): the render's sum over the albedo's sum per
+    channel, over pixels with a surface of known, not-black colour whose render is not clipped.
+    Light bounced off orange wood counts, as it does for a camera. None when too little is seen."""
+    ok = (albedo.min(axis=-1) > 0.02) & (linear.max(axis=-1) < clipped)
+    if ok.sum() < 16:
+        return None
+    return linear[ok].sum(axis=0) / albedo[ok].sum(axis=0)
+
+
+def balance_gains(light: np.ndarray | None) -> np.ndarray:
+    """Per-channel gains that make ``light`` neutral at its own luminance (brightness kept)."""
+    if light is None or not np.all(np.isfinite(light)) or light.max() <= 0:
+        return np.ones(3)
+    return np.clip(float(light @ REC709_LUMA) / np.maximum(light, 1e-12), *AWB_GAINS)
+
+
+def exposure_gain(linear: np.ndarray) -> float:
+    """The factor that brings the image's log-average luminance to middle grey (Reinhard's key), as
+    a camera's average metering does; within AE_RANGE; 1 for a black image."""
+    y = np.asarray(linear, np.float64) @ REC709_LUMA
+    if not np.any(y > 0):
+        return 1.0
+    log_mean = float(np.exp(np.mean(np.log(np.maximum(y, 1e-4)))))
+    return float(np.clip(MIDDLE_GREY / log_mean, *AE_RANGE))
+
+
+def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng: np.random.Generator,
+               albedo8: np.ndarray | None = None) -> np.ndarray:
+    """The sensor's 8-bit sRGB image of a render (its linear radiance, or its 8-bit image decoded);
+    ``albedo8`` (the view's sRGB albedo map) is needed for auto white balance."""
+    # Draw every number whatever is switched on, so enabling one effect never shifts another's noise.
+    stops = float(rng.uniform(*sensor.exposure)) if sensor.exposure != (0.0, 0.0) else 0.0
+    kelvin = float(rng.uniform(*sensor.white_balance)) if sensor.white_balance else 6500.0
+    if not sensor.affects_rgb:
+        return rgb8
+    x = (np.asarray(linear, np.float64) if linear is not None else srgb_to_linear(rgb8.astype(np.float64) / 255.0))
+    x = np.maximum(x, 0.0)
+    if sensor.auto_white_balance:
+        if albedo8 is None:
+            raise ValueError("auto white balance needs the view's albedo map")
+        albedo = srgb_to_linear(np.asarray(albedo8, np.float64) / 255.0)
+        x = x * balance_gains(illuminant(x, albedo, clipped=np.inf if linear is not None else 0.99))
+    if sensor.auto_exposure:
+        x = x * exposure_gain(x)
+    gains = np.asarray(kelvin_rgb(6500.0)) / np.asarray(kelvin_rgb(kelvin))
+    x = x * (2.0 ** stops) * (gains / gains.mean())
+    noise_std = np.sqrt(sensor.shot_noise ** 2 * x + sensor.read_noise ** 2)
+    x = x + noise_std * rng.standard_normal(x.shape)
+    return linear_to_srgb8(np.clip(x, 0.0, None).astype(np.float32))
+
+
+def jpeg_quality(sensor: Sensor, default: int, rng: np.random.Generator) -> int:
+    return int(rng.integers(sensor.jpeg_quality[0], sensor.jpeg_quality[1] + 1)) if sensor.jpeg_quality else default
+
+
+def sensor_depth(depth: np.ndarray, model: DepthSensor, rng: np.random.Generator) -> np.ndarray:
+    """A noisy copy of a z-depth map (metres, 0 = empty)."""
+    z = np.asarray(depth, np.float64)
+    valid = z > 0
+    a, b = model.axial_noise
+    noisy = z + (a + b * z * z) * rng.standard_normal(z.shape)
+    holes = rng.random(z.shape) < model.dropout
+    if model.edge_holes:
+        jump = np.zeros_like(valid)
+        for axis in (0, 1):
+            d = np.abs(np.diff(z, axis=axis))
+            big = d > 0.05 * np.maximum(np.delete(z, 0, axis=axis), np.delete(z, -1, axis=axis))
+            pad = [(0, 0), (0, 0)]
+            pad[axis] = (1, 0)
+            jump |= np.pad(big, pad)
+            pad[axis] = (0, 1)
+            jump |= np.pad(big, pad)
+        grown = jump.copy()
+        for _ in range(model.edge_holes - 1):
+            grown |= np.roll(grown, 1, 0) | np.roll(grown, -1, 0) | np.roll(grown, 1, 1) | np.roll(grown, -1, 1)
+        holes |= grown
+    if model.quantisation > 0:
+        noisy = np.round(noisy / model.quantisation) * model.quantisation
+    return np.where(valid & ~holes & (noisy > 0), noisy, 0.0).astype(np.float32)
