@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 
 from specsynth.plan.compiler import compile_spec
-from specsynth.run.tasks import BuildContext, Worker
+from specsynth.run.arrange import run_arrange
+from specsynth.run.worker import BuildContext, Worker
 from specsynth.spec.yamlio import load_spec
 
 OBJECTS = ["duck", "mug", "teddy", "lego", "jenga", "torus", "toys/cube", "toys/cylinder", "toys/prism",
@@ -54,7 +55,7 @@ def main() -> None:
             for arr in range(args.n):
                 job = graph.arrange_job(arr)
                 t0 = time.process_time()
-                w.run_arrange(job)
+                run_arrange(w, job)
                 cpu.append(time.process_time() - t0)
                 rec = w.store.load("arrange", job.key)
                 dropped += rec["dropped"]

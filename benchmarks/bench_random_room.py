@@ -5,7 +5,7 @@
 Each room is what an arrangement loads: the generator (catalogue draw, placement, re-dressing),
 furniture unpacked and converted once into the cache (the first rooms pay for new models), the
 normalised meshes, and the stages found. The worker keeps the last two rooms
-(``specsynth.run.tasks.PROCEDURAL_KEPT``); this loop does the same. Reported: the first room, the
+(``specsynth.run.worker.PROCEDURAL_KEPT``); this loop does the same. Reported: the first room, the
 median and 90th percentile of the rest, the share of furniture models already in the cache by
 the end, and the resident memory after rooms 10, 50, 100, ... (RSS from /proc).
 """

@@ -20,7 +20,7 @@ import numpy as np
 from specsynth.backend_api import load_backend
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.bench import _views, psnr8, rel_mse, scaled_intrinsics
-from specsynth.run.tasks import BuildContext, Worker
+from specsynth.run.worker import BuildContext, Worker
 from specsynth.spec.models import PAPER_PRESETS, QualityPreset
 from specsynth.spec.yamlio import load_spec
 

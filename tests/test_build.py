@@ -310,7 +310,7 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
     from specsynth.annotate.engine import Annotator
     from specsynth.model.records import ArrangementRecord, ViewRecord
     from specsynth.run.store import Store
-    from specsynth.run.tasks import BuildContext, Worker
+    from specsynth.run.worker import BuildContext, Worker
 
     spec = tmp_path / "s.yaml"
     spec.write_text(SPEC.replace("  - name: room\n", f"  - name: {scene}\n").replace("count: 2", "count: 6")

@@ -563,7 +563,7 @@ def test_one_thread_worker_uses_one_core(meshes, thread):
     import sys
 
     tests = str(Path(__file__).resolve().parent)
-    # One BLAS thread, as in a build's workers (specsynth.run.tasks.Worker), so only Cycles is measured.
+    # One BLAS thread, as in a build's workers (specsynth.run.worker.Worker), so only Cycles is measured.
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     r = subprocess.run([sys.executable, "-c", _ONE_CORE, json.dumps(meshes), tests, str(Path(tests).parent), thread],
                        capture_output=True, text=True, timeout=300, env=env)

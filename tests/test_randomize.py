@@ -16,7 +16,7 @@ from specsynth.model.records import ArrangementRecord
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.build import build
 from specsynth.run.store import Store
-from specsynth.run.tasks import BuildContext, Worker
+from specsynth.run.worker import BuildContext, Worker
 from specsynth.scenes import load_scene
 from specsynth.scenes.randomize import randomize_scene
 from specsynth.spec.models import SceneRandomization

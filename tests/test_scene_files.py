@@ -205,7 +205,7 @@ def _masks_agree_with_cycles_rerender(byo: Path, out: Path) -> None:
     from specsynth.model.ir import CameraIR, as_tuple
     from specsynth.model.records import ArrangementRecord, ViewRecord
     from specsynth.plan.compiler import compile_spec
-    from specsynth.run.tasks import BuildContext, Worker
+    from specsynth.run.worker import BuildContext, Worker
     from specsynth.spec.yamlio import load_spec
     from specsynth_cycles.backend import CyclesBackend
 

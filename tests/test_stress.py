@@ -97,7 +97,7 @@ def test_masks_and_depth_match_the_analytic_projection(tmp_path, size, distance,
     R, t = cameras.look_at(eye, centre)
     cam = cameras.camera_ir(INTR, R, t)
     scene = _box_scene(tmp_path, size, centre)
-    origin = centre.copy()  # what specsynth.run.tasks.Worker.frame does
+    origin = centre.copy()  # what specsynth.run.worker.Worker.frame does
     ann = Annotator(W, H)
     try:
         ann.load(scene.translated(origin))

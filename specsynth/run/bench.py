@@ -189,7 +189,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
               ladder: bool = False) -> list[Row]:
     from ..outputs.images import write_png
-    from .tasks import BuildContext, Worker
+    from .worker import BuildContext, Worker
 
     out = Path(out)
     spec = graph.spec

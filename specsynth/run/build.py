@@ -412,7 +412,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     its images rendered as soon as its cameras are known. Stage seconds in the summary are
     worker-seconds (summed over workers); ``wall_seconds`` is the whole build.
     """
-    from .tasks import BuildContext
+    from .worker import BuildContext
 
     t_build = time.perf_counter()
     out = Path(out)

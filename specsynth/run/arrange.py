@@ -1,0 +1,99 @@
+"""The arrange step: draw a stage, objects and distractors from the job's seed, drop them with
+physics, store the arrangement record (with the credits of everything it shows)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..assets.resolve import ObjectAsset
+from ..model.records import ArrangementRecord, PlacedObject
+from ..plan import seeds
+from ..plan.compiler import Job
+from ..scenes import procedural_name
+from ..spec.models import SceneRef
+from .worker import Worker
+
+
+def run_arrange(w: Worker, job: Job) -> dict[str, Any]:
+    """Settle one arrangement (cached when its record exists) -> a summary for the build."""
+    from ..physics import arrange
+
+    if w.store.has("arrange", job.key):
+        return {"id": job.id, "cached": True}
+    spec = w.spec
+    index, rng = seeds.scene_draw(spec.seed, job.id, [s.weight for s in spec.scenes])
+    ref = spec.scenes[index]
+    variant = seeds.job_seed(spec.seed, f"{job.id}/scene") if procedural_name(ref) else None
+    scene = w.scene(ref, variant)
+    names = ref.stages or sorted(scene.stages)
+    missing = [n for n in names if n not in scene.stages]
+    if missing:
+        raise ValueError(f"scene {ref.ref!r} has no stage(s) {missing}; it has {sorted(scene.stages)}")
+    stage = scene.stages[names[int(rng.integers(len(names)))]]
+
+    models = w.assets()
+    if spec.objects.models_per_arrangement is not None:
+        lo, hi = spec.objects.models_per_arrangement
+        k = min(int(rng.integers(lo, hi + 1)), len(models))
+        chosen = sorted(rng.choice(len(models), size=k, replace=False))
+        models = [models[i] for i in chosen]
+    lo, hi = spec.objects.instances
+    drop: list[ObjectAsset] = []
+    for m in models:
+        drop += [m] * int(rng.integers(lo, hi + 1))
+
+    distractors = w.distractor_assets(draw_distractors(spec.arrangements.distractors, rng))
+    result = arrange(scene, stage, drop + distractors, spec.arrangements, spec.objects.orientation, rng)
+    targets = [(i, pose) for i, pose in result.placed if i < len(drop)]
+    placed = [
+        PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
+        for n, (i, pose) in enumerate(targets)
+    ]
+    others = [
+        PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
+        for n, (i, pose) in enumerate((i, pose) for i, pose in result.placed if i >= len(drop))
+    ]
+    if spec.arrangements.distractors.annotate:  # objects like the others, after them in gt order
+        n_obj = len(w.assets())
+        placed += [PlacedObject(obj_id=spec.arrangements.distractors.obj_id(o.name, n_obj), inst=len(placed) + k,
+                                name=o.name, pose=o.pose) for k, o in enumerate(others)]
+        others = []
+    rec = ArrangementRecord(
+        arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
+        objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
+        settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
+        credits=list(scene.credits) + [a.credit for a in models if a.credit]
+        + [a.credit for a in {d.name: d for d in distractors}.values() if a.credit],
+        distractors=others,
+    )
+    rec.credits += swapped_credits(w, rec, ref)
+    w.store.put("arrange", job.key, rec.to_json())
+    return {"id": job.id, "removed": rec.removed, "redropped": rec.redropped, "objects": len(placed)}
+
+
+def swapped_credits(w: Worker, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:
+    """Credits of the library textures that randomisation puts into this arrangement's scene
+    (exactly what its renders will show: the same function of the same seed)."""
+    if not ref.randomize.materials:
+        return []
+    from ..assets.library import textures
+    from ..assets.library.cache import cache_dir
+
+    by_path = {str(t.path): t for t in textures.available(cache_dir())}
+    used = sorted({m.material.texture for m in w.render_scene(rec).meshes if m.material.texture in by_path})
+    return [by_path[t].credit for t in used]
+
+
+def draw_distractors(d, rng: np.random.Generator) -> list[str]:
+    """The built-in objects dropped as distractors in one arrangement."""
+    lo, hi = d.count
+    n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
+    pool = [o for o in d.objects if o != "random_urdfs/*"]
+    wild = "random_urdfs/*" in d.objects
+    out = []
+    for _ in range(n):
+        k = int(rng.integers(len(pool) + (1000 if wild else 0)))
+        out.append(pool[k] if k < len(pool) else f"random_urdfs/{k - len(pool):03d}")
+    return out
