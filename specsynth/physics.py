@@ -29,6 +29,7 @@ import numpy as np
 
 from .assets import meshio
 from .assets.resolve import ObjectAsset
+from .atomic import atomic_write_bytes
 from .scenes.types import SceneDesc, Stage
 from .spec.models import Arrangements, Physics
 
@@ -263,7 +264,7 @@ def convex_decomposition(mesh_key: str, tm, cache_dir: Path) -> list[tuple[np.nd
         nv=np.array([len(v) for v, _ in parts]),
         nf=np.array([len(f) for _, f in parts]),
     )
-    meshio.atomic_write_bytes(path, buf.getvalue())
+    atomic_write_bytes(path, buf.getvalue())
     # Return what was stored so a fresh computation and a cache hit give identical bits.
     with np.load(io.BytesIO(buf.getvalue()), allow_pickle=False) as z:
         return _split_parts(z["vertices"], z["faces"], z["nv"], z["nf"])

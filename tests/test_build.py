@@ -410,13 +410,13 @@ def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path,
     free, nothing finished is lost, and the next build completes the dataset as a clean one."""
     import errno
 
-    from specsynth.assets import meshio
+    from specsynth import atomic
 
     clean, out = tmp_path / "clean", tmp_path / "out"
     build(graph(spec_file), clean, jobs=1)
     build(graph(spec_file), out, jobs=1, until="view")  # arrangements and cameras are done
     done = sorted(Store_keys(out, "arrange"))
-    real = meshio.os.fdopen
+    real = atomic.os.fdopen
 
     class Full:
         def __init__(self, f):
@@ -431,11 +431,11 @@ def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path,
         def write(self, data):
             raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(meshio.os, "fdopen", lambda fd, mode="r": Full(real(fd, mode)))
+    monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode="r": Full(real(fd, mode)))
     with pytest.raises(OSError, match=r"no space left on the device of .*: writing [\d,]+ bytes, [\d,]+ bytes free"):
         build(graph(spec_file), out, jobs=1)
     assert sorted(Store_keys(out, "arrange")) == done  # nothing finished was lost
-    monkeypatch.setattr(meshio.os, "fdopen", real)
+    monkeypatch.setattr(atomic.os, "fdopen", real)
     again = build(graph(spec_file), out, jobs=1)
     assert not again.failures and tree_digest(out) == tree_digest(clean)
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_write_bytes
 from ..model.colour import srgb_to_linear
 from ..model.conventions import rpy_matrix
 from ..model.ir import MaterialIR
@@ -41,7 +42,7 @@ from .meshfiles import ply, single
 from .meshfiles import urdf as urdf_reader
 from .meshfiles.part import MeshFileError
 from .meshfiles.sniff import check_mesh_file
-from .meshio import MeshData, MeshFormatError, atomic_write_bytes, mesh_bytes
+from .meshio import MeshData, MeshFormatError, mesh_bytes
 
 # Bump when the conversion changes its output for the same input: every cached mesh and every
 # content key that depends on an asset then changes with it.

@@ -13,7 +13,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from ..assets.meshio import atomic_write_bytes, new_temp_beside
+from ..atomic import atomic_write_bytes, atomic_write_via
 from ..model.conventions import m_to_mm
 from ..model.records import ImageRecord
 
@@ -71,6 +71,10 @@ def write_if_changed(path: Path, data: bytes) -> bool:
     return True
 
 
+def _no_follow(path: str, flags: int) -> int:
+    return os.open(path, flags | os.O_NOFOLLOW)  # the temp file is ours: never a link put in its place
+
+
 def place_file(src: Path, dst: Path) -> bool:
     """Copy ``src`` to ``dst`` atomically, keeping its mtime; False when ``dst`` is already that
     copy (same size and mtime: a later edit of ``dst`` changes them and is repaired here)."""
@@ -82,17 +86,14 @@ def place_file(src: Path, dst: Path) -> bool:
         dt = dst.stat()
         if dt.st_size == st.st_size and dt.st_mtime_ns == st.st_mtime_ns and dt.st_ino != st.st_ino:
             return False
-    fd, tmp = new_temp_beside(dst)
-    try:
-        with os.fdopen(fd, "wb") as out, open(src, "rb") as inp:
+
+    def copy(tmp: str) -> None:
+        with open(tmp, "wb", opener=_no_follow) as out, open(src, "rb") as inp:
             if not _reflink(inp.fileno(), out.fileno()):
                 shutil.copyfileobj(inp, out, 1 << 20)
         os.utime(tmp, ns=(st.st_atime_ns, st.st_mtime_ns))
-        os.replace(tmp, dst)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    atomic_write_via(dst, copy)
     return True
 
 

@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import io
 import math
-import os
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from PIL import Image
 
-from ..assets.meshio import atomic_write_bytes, new_temp_beside
+from ..atomic import atomic_write_bytes, atomic_write_via
 
 # Scales a user would recognise (BOP datasets use 0.1 and 1.0); "auto" takes the finest that fits
 # so near-range data keeps sub-millimetre resolution.
@@ -141,16 +140,10 @@ def write_exr(path: str | Path, rgb_linear: np.ndarray) -> None:
     a = np.ascontiguousarray(rgb_linear, dtype=np.float32)
     if a.ndim != 3 or a.shape[2] != 3:
         raise ValueError(f"EXR needs a HxWx3 array, got shape {a.shape}")
-    path = Path(path)
-    # OpenEXR writes by file name only, so the temp file must be a real path in the target dir.
-    fd, tmp = new_temp_beside(path, ".exr")
-    os.close(fd)
-    try:
-        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+
+    def write(tmp: str) -> None:  # OpenEXR writes by file name only
         with OpenEXR.File(header, {"RGB": a}) as f:
             f.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    atomic_write_via(Path(path), write, ".exr")

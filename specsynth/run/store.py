@@ -15,7 +15,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from ..assets.meshio import atomic_write_bytes, disk_full
+from ..atomic import atomic_write_bytes, disk_full
 from ..plan.keys import canonical_json
 
 RECORD = "record.json"

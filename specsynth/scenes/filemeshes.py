@@ -20,7 +20,8 @@ from typing import Callable
 
 from ..assets import meshfiles
 from ..assets import resolve as assets
-from ..assets.meshio import MeshData, atomic_write_bytes
+from ..assets.meshio import MeshData
+from ..atomic import atomic_write_bytes
 from ..model.ir import MaterialIR
 from .models import SceneMesh
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..meshio import atomic_write_bytes
+from ...atomic import atomic_write_bytes
 from .part import MeshFileError
 
 MAX_TEXTURE_PIXELS = 8192 * 8192  # past this a texture is refused, not silently decoded
