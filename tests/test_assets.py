@@ -229,7 +229,7 @@ def test_unusable_normals_are_replaced_by_their_faces_normal(seed, broken):
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     bad = rng.random(9) < broken
     n[bad] = np.where(rng.random((bad.sum(), 1)) < 0.5, 0.0, np.nan)
-    fixed = MeshData(vertices=v.astype(np.float32), faces=f, normals=n.astype(np.float32)).with_usable_normals().normals
+    fixed = MeshData(vertices=v.astype(np.float32), faces=f, normals=n.astype(np.float32)).with_usable_normals().normals[:9]
     assert np.isfinite(fixed).all() and np.allclose(np.linalg.norm(fixed, axis=1), 1.0, atol=1e-5)
     assert np.array_equal(fixed[~bad], n[~bad].astype(np.float32))
     assert (fixed[bad][:, 2] > 0).all()  # a height field wound counter-clockwise faces +z
@@ -238,3 +238,73 @@ def test_unusable_normals_are_replaced_by_their_faces_normal(seed, broken):
     g = down.with_usable_normals().faces
     vv = v[g]
     assert (np.cross(vv[:, 1] - vv[:, 0], vv[:, 2] - vv[:, 0])[:, 2] < 0).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31), st.floats(0.05, 0.9))
+def test_faces_whose_corners_point_elsewhere_are_drawn_flat(seed, flipped):
+    """A corner normal pointing away from its face (a desk top's slivers sharing a vertex with its
+    underside) gives that face its own corners with its flat normal: afterwards every face agrees
+    with its corners, the triangles, their UVs and colours are where they were, and faces that
+    agreed keep their shared vertices and smooth normals."""
+    from specsynth.assets.meshio import DISAGREE, MeshData
+
+    rng = np.random.default_rng(seed)
+    xs, ys = np.meshgrid(np.arange(4.0), np.arange(4.0))
+    v = np.stack([xs.ravel(), ys.ravel(), rng.uniform(-0.1, 0.1, 16)], axis=1).astype(np.float32)
+    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 5, r * 4 + c + 4) for r in range(3) for c in range(3)]
+    f = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    n = np.tile([0.0, 0.0, 1.0], (16, 1))
+    n[rng.random(16) < flipped] = [0.0, 0.0, -1.0]
+    uv = rng.random((16, 2)).astype(np.float32)
+    colors = rng.integers(0, 256, (16, 4)).astype(np.uint8)
+    mesh = MeshData(vertices=v, faces=f, normals=n.astype(np.float32), uv=uv, colors=colors)
+    out = mesh.with_usable_normals()
+    fv = out.vertices[out.faces].astype(np.float64)
+    unit = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    assert (np.einsum("fkj,fj->fk", out.normals[out.faces], unit) >= DISAGREE - 1e-6).all()
+    # The same triangles (as sets of corners, winding aside), with the same UVs and colours.
+    def corners(m):
+        return sorted(tuple(sorted(map(tuple, np.concatenate([m.vertices[t], m.uv[t], m.colors[t]], axis=1).tolist())))
+                      for t in m.faces)
+    assert corners(out) == corners(mesh)
+    agreed = (np.einsum("fkj,fj->fk", mesh.normals[mesh.faces], np.sign(mesh.normals[mesh.faces].sum(1)[:, 2:3])
+                        * [[0.0, 0.0, 1.0]]).min(axis=1) >= DISAGREE)
+    assert (out.faces[agreed] < 16).all()
+
+
+def _box(lo, hi):
+    """A closed box, faces wound outwards, as (vertices, faces)."""
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    v = np.array([[x, y, z] for z in (z0, z1) for y in (y0, y1) for x in (x0, x1)], np.float64)
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    return v, np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31))
+def test_back_to_back_faces_keep_one_side(seed):
+    """Faces lying in a surface of the other orientation (the desk top's downward slivers) give
+    way; a closed box keeps every face; a zero-thickness sheet keeps exactly one side."""
+    from specsynth.assets.meshio import MeshData
+    from specsynth.assets.repair import drop_overlapping
+
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-1, 0, 3)
+    hi = lo + rng.uniform(0.05, 1.0, 3)
+    v, f = _box(lo, hi)
+    box = MeshData(vertices=v.astype(np.float32), faces=f)
+    assert drop_overlapping(box) is box
+    # A downward triangle inside the top face (z = hi), like the desk's: it goes, the box stays.
+    c = rng.uniform(lo[:2] + 0.3 * (hi[:2] - lo[:2]), hi[:2] - 0.3 * (hi[:2] - lo[:2]))
+    r = 0.2 * min(hi[0] - lo[0], hi[1] - lo[1])
+    tri = np.array([[c[0], c[1], hi[2]], [c[0] + r, c[1], hi[2]], [c[0], c[1] - r, hi[2]]])  # clockwise from above
+    mesh = MeshData(vertices=np.concatenate([v, tri]).astype(np.float32), faces=np.concatenate([f, [[8, 9, 10]]]))
+    assert np.array_equal(drop_overlapping(mesh).faces, f)
+    # A sheet drawn from both sides: one side stays, all of it.
+    sheet = MeshData(vertices=v[:4].astype(np.float32), faces=np.array([[0, 2, 3], [0, 3, 1], [0, 3, 2], [0, 1, 3]]))
+    kept = sheet.vertices[drop_overlapping(sheet).faces].astype(np.float64)
+    facing = np.sign(np.cross(kept[:, 1] - kept[:, 0], kept[:, 2] - kept[:, 0])[:, 2])
+    assert len(kept) == 2 and facing[0] == facing[1]

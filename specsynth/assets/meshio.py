@@ -19,6 +19,11 @@ class MeshFormatError(ValueError):
     pass
 
 
+# A face whose vertex normal is more than ~75 degrees off its own normal is drawn flat: smooth
+# shading across a real crease stays well inside (a cube corner's shared normal is 55 degrees off).
+DISAGREE = 0.25
+
+
 @dataclass(frozen=True, eq=False)
 class MeshData:
     vertices: np.ndarray  # (N, 3) float32, metres
@@ -43,13 +48,16 @@ class MeshData:
         return self
 
     def with_usable_normals(self) -> "MeshData":
-        """The mesh with faces wound the way its normals point, and every zero-length or
-        non-finite normal replaced by the area-weighted normal of the faces around its vertex.
+        """The mesh with faces wound the way its normals point, every zero-length or non-finite
+        normal replaced by the area-weighted normal of the faces around its vertex, and every face
+        whose own vertex normals disagree with it given its flat normal.
 
-        Library models carry both: triangles wound against their vertex normals (one Sweet Home 3D
-        desk has 394 of 472 such faces in one part) and a few zero normals (a laptop has 148), which
-        a renderer can only interpolate into garbage. A face is turned when its winding normal
-        points against the sum of its vertices' normals; valid normals are kept as they are."""
+        Library models carry all three: triangles wound against their vertex normals (one Sweet
+        Home 3D desk has 394 of 472 such faces in one part), a few zero normals (a laptop has 148),
+        and faces whose corners point opposite ways (that desk's top has 44 long slivers with one
+        corner's normal pointing down), which a renderer can only interpolate into garbage (Cycles
+        drew them as black streaks). A face is turned when its winding normal points against the
+        sum of its vertices' normals; valid normals on faces they agree with are kept as they are."""
         if self.normals is None:
             return self
         n = np.asarray(self.normals, np.float64)
@@ -59,8 +67,6 @@ class MeshData:
         face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
         good_n = np.where(bad[:, None], 0.0, n)
         against = np.einsum("fj,fj->f", face_n, good_n[f].sum(axis=1)) < 0
-        if not bad.any() and not against.any():
-            return self
         f = np.where(against[:, None], f[:, [0, 2, 1]], f)
         face_n = np.where(against[:, None], -face_n, face_n)
         acc = np.zeros_like(v)
@@ -68,12 +74,36 @@ class MeshData:
             np.add.at(acc, f[:, k], face_n)
         acc_len = np.linalg.norm(acc, axis=1, keepdims=True)
         fallback = np.where(acc_len > 0, acc / np.where(acc_len > 0, acc_len, 1.0), [0.0, 0.0, 1.0])
-        fixed = np.where(bad[:, None], fallback, n).astype(np.float32)
-        return replace(self, faces=f.astype(self.faces.dtype), normals=fixed)
+        fixed = np.where(bad[:, None], fallback, n / np.where(bad, 1.0, length)[:, None])
+        area2 = np.linalg.norm(face_n, axis=1)
+        unit = face_n / np.where(area2 > 0, area2, 1.0)[:, None]
+        split = (area2 > 0) & (np.einsum("fkj,fj->fk", fixed[f], unit).min(axis=1) < DISAGREE)
+        if not bad.any() and not against.any() and not split.any():
+            return self
+        normals = np.where(bad[:, None], fixed, n).astype(np.float32)
+        if not split.any():
+            return replace(self, faces=f.astype(self.faces.dtype), normals=normals)
+        return _flat_faces(replace(self, faces=f.astype(self.faces.dtype), normals=normals), split, unit[split])
 
     @property
     def bounds(self) -> np.ndarray:
         return np.stack([self.vertices.min(0), self.vertices.max(0)])
+
+
+def _flat_faces(mesh: MeshData, faces: np.ndarray, normals: np.ndarray) -> MeshData:
+    """``mesh`` with the ``faces`` (a mask) given three vertices of their own carrying ``normals``
+    (their flat normals); UVs and colours copied with their corners."""
+    f = np.asarray(mesh.faces).copy()
+    corners = f[faces].reshape(-1)
+    start = len(mesh.vertices)
+    f[faces] = (start + np.arange(len(corners))).reshape(-1, 3)
+
+    def extended(a):
+        return None if a is None else np.concatenate([a, a[corners]])
+
+    return replace(mesh, vertices=extended(mesh.vertices), faces=f.astype(mesh.faces.dtype),
+                   normals=np.concatenate([mesh.normals, np.repeat(normals, 3, axis=0).astype(np.float32)]),
+                   uv=extended(mesh.uv), colors=extended(mesh.colors))
 
 
 def _vertex_dtype(mesh: MeshData, uv_names: tuple[str, str] = ("u", "v"), colors_first: bool = False) -> np.dtype:

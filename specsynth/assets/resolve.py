@@ -43,12 +43,15 @@ from .meshfiles import urdf as urdf_reader
 from .meshfiles.part import MeshFileError
 from .meshfiles.sniff import check_mesh_file
 from .meshio import MeshData, MeshFormatError, mesh_bytes
+from .repair import drop_overlapping
 
 # Bump when the conversion changes its output for the same input: every cached mesh and every
 # content key that depends on an asset then changes with it.
 # 2: textures are copied into the cache under their content hash (no path into a user's folder).
 # 3 (4): faces wound the way their normals point; zero-length or non-finite normals replaced by their faces'.
-CONVERSION_VERSION = 4
+# 5 (6): faces whose corner normals point away from them drawn flat; faces overlapping a larger
+# one in its plane dropped (assets/repair.py).
+CONVERSION_VERSION = 6
 
 # Built-in models are re-centred on their bounding box, as BOP expects of a model (pybullet_data's
 # origins are wherever the modeller left them: 100 mm off for the mug). User models stay as given.
@@ -569,7 +572,7 @@ def check_texture(path: Path, what: str) -> None:
 def store_mesh(mesh: MeshData, key: str, cache: Path, comments: tuple[str, ...] = ()) -> tuple[Path, str]:
     """Write the normalised PLY as ``<cache>/assets/<key>.ply`` (once) -> (path, mesh_key)."""
     path = Path(cache) / "assets" / f"{key}.ply"
-    data = mesh_bytes(mesh.with_usable_normals(), comments)
+    data = mesh_bytes(drop_overlapping(mesh.with_usable_normals()), comments)
     if not (path.is_file() and path.stat().st_size == len(data)):
         atomic_write_bytes(path, data)
     return path, hashlib.sha256(data).hexdigest()
