@@ -308,3 +308,28 @@ def test_back_to_back_faces_keep_one_side(seed):
     kept = sheet.vertices[drop_overlapping(sheet).faces].astype(np.float64)
     facing = np.sign(np.cross(kept[:, 1] - kept[:, 0], kept[:, 2] - kept[:, 0])[:, 2])
     assert len(kept) == 2 and facing[0] == facing[1]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31))
+def test_box_uvs_project_each_face_along_its_axis_in_metres(seed):
+    """A mesh without UVs gets them by box projection (a texture given to it then shows, as with
+    Blender's generated coordinates): each corner's UV is its position on the two axes other than
+    the one its face's normal is closest to; the triangles, normals and colours are unchanged."""
+    from specsynth.assets.meshfiles.primitives import with_box_uvs
+    from specsynth.assets.meshio import MeshData
+
+    rng = np.random.default_rng(seed)
+    v = rng.uniform(-1, 1, (12, 3)).astype(np.float32)
+    f = np.array([rng.choice(12, 3, replace=False) for _ in range(10)], np.int32)
+    n = rng.normal(size=(12, 3)).astype(np.float32)
+    colors = rng.integers(0, 256, (12, 4)).astype(np.uint8)
+    out = with_box_uvs(MeshData(vertices=v, faces=f, normals=n, colors=colors))
+    assert with_box_uvs(out) is out
+    tri = out.vertices[out.faces].astype(np.float64)
+    assert np.allclose(tri, v[f]) and np.array_equal(out.normals[out.faces], n[f])
+    assert np.array_equal(out.colors[out.faces], colors[f])
+    axis = np.argmax(np.abs(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])), axis=1)
+    keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]
+    expected = np.take_along_axis(tri, np.repeat(keep[:, None, :], 3, axis=1), axis=2)
+    assert np.allclose(out.uv[out.faces], expected, atol=1e-6)

@@ -193,6 +193,71 @@ def test_clutter_stands_on_open_tops_and_leaves_stages(cache):
     assert seen >= 6
 
 
+def test_pictures_hang_on_the_walls_clear_of_window_furniture_and_each_other(cache):
+    """Framed public-domain / CC0 photographs: against a wall's inner face, 1.1-1.9 m up, inside
+    the wall, never over the window, over each other or over furniture reaching their bottom
+    edge; credited; the same for a seed."""
+    from specsynth.assets.library import pictures
+
+    by_file = {p.path.name: p.name for p in pictures.available()}
+    assert len(by_file) >= 5 and all(p.licence in ("CC0", "public domain") for p in pictures.available())
+    hung = 0
+    for seed in range(12):
+        sf, credits = random_room(seed, cache)
+        W, D = next(m for m in sf.meshes if m.name == "floor").source.plane
+        H = next(m for m in sf.meshes if m.name == "ceiling").transform.translation[2] - 0.05
+        win = next(m for m in sf.meshes if m.name == "wall_north_below")
+        wx, ww = win.transform.translation[0], win.source.box[0]
+        spans = []
+        for m in (m for m in sf.meshes if m.name.startswith("picture_") and not m.name.endswith("_frame")):
+            hung += 1
+            assert f"picture:{by_file[Path(m.material.texture).name]}" in {c["asset"] for c in credits}
+            x, y, z = m.transform.translation
+            w, _, h = m.source.box
+            yaw = m.transform.rotation[2]
+            assert 1.1 <= z <= 1.9 and z + h / 2 < H and not m.collide
+            wall = {0.0: "north", 180.0: "south", -90.0: "east", 90.0: "west"}[yaw]
+            along, off = (x, y) if wall in ("north", "south") else (y, x)
+            half = W / 2 if wall in ("north", "south") else D / 2
+            assert abs(abs(off) - ((D if wall in ("north", "south") else W) / 2 - 0.02)) < 1e-9
+            assert -half < along - w / 2 and along + w / 2 < half
+            if wall == "north":
+                assert along + w / 2 <= wx - ww / 2 or wx + ww / 2 <= along - w / 2
+            spans.append((wall, along - w / 2, along + w / 2))
+            strip = {"north": (along - w / 2, D / 2 - 0.6, along + w / 2, D / 2),
+                     "south": (along - w / 2, -D / 2, along + w / 2, -D / 2 + 0.6),
+                     "east": (W / 2 - 0.6, along - w / 2, W / 2, along + w / 2),
+                     "west": (-W / 2, along - w / 2, -W / 2 + 0.6, along + w / 2)}[wall]
+            for piece in (p for p in sf.meshes if p.name.startswith("furniture_")):
+                fw, fd, fh = furniture.find(piece.source.furniture).size
+                if abs(abs(piece.transform.rotation[2]) - 90) < 1:
+                    fw, fd = fd, fw
+                px, py, _ = piece.transform.translation
+                if fh >= z - h / 2 - 0.05:  # reaches the picture: must stand clear of the wall below it
+                    assert not (px - fw / 2 < strip[2] and strip[0] < px + fw / 2 and py - fd / 2 < strip[3]
+                                and strip[1] < py + fd / 2), (seed, m.name, piece.name)
+        for i in range(len(spans)):
+            for j in range(i):
+                a, b = spans[i], spans[j]
+                assert a[0] != b[0] or a[2] <= b[1] or b[2] <= a[1], (seed, a, b)
+        again, _ = random_room(seed, cache)
+        assert again.model_dump() == sf.model_dump()
+    assert hung >= 10
+
+
+def test_plain_materials_whose_texture_file_is_lost_are_redressed(cache):
+    """Blend Swap's bed2 names texture files its archive lacks: such a material renders plain, so it
+    counts as untextured and gets a library texture as often as any plain one."""
+    from specsynth.scenes.random_room import REDRESS, redress
+
+    item = furniture.find("Blend Swap CC-0#bed2")
+    woods = [t for t in textures.available(cache) if t.kind == "floor" and "wood" in t.name]
+    felt = next(t for t in textures.available(cache) if t.kind == "fabric")
+    dressed = [redress(np.random.default_rng(seed), item, cache, woods, felt)[0] for seed in range(40)]
+    share = np.mean(["sheet" in d for d in dressed])
+    assert abs(share - REDRESS) < 0.2 and all(Path(d["sheet"].texture).is_file() for d in dressed if "sheet" in d)
+
+
 def test_random_room_without_textures_names_the_fix(tmp_path, monkeypatch):
     monkeypatch.setenv("SPECSYNTH_CACHE", str(tmp_path))
     with pytest.raises(SceneError, match="run `make install`"):

@@ -81,7 +81,8 @@ def room_params(ref) -> random_room.RoomParams:
         kinds=tuple(opts.kinds), width=tuple(opts.width), depth=tuple(opts.depth), height=tuple(opts.height),
         wall_pieces=(round(6 * d0), max(round(6 * d0), round(10 * d1))),
         middle_pieces=(round(1 * d0), max(round(1 * d0), round(2 * d1))),
-        categories=tuple(opts.categories) if opts.categories else None, clutter=tuple(opts.clutter))
+        categories=tuple(opts.categories) if opts.categories else None, clutter=tuple(opts.clutter),
+        pictures=tuple(opts.pictures))
 
 
 def _scene_path(ref, spec_dir: Path) -> Path:

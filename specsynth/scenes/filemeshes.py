@@ -20,12 +20,13 @@ from typing import Callable
 
 from ..assets import meshfiles
 from ..assets import resolve as assets
+from ..assets.meshfiles.primitives import with_box_uvs
 from ..assets.meshio import MeshData
 from ..atomic import atomic_write_bytes
 from ..model.ir import MaterialIR
 from .models import SceneMesh
 
-PARTS_VERSION = 3  # 2: every PBR map, alpha, UV transform, wrap; 3: has_uv
+PARTS_VERSION = 4  # 2: every PBR map, alpha, UV transform, wrap; 3: has_uv; 4: box UVs where none
 TEXTURE_FIELDS = ("texture", "roughness_texture", "metallic_texture", "normal_texture", "emission_texture",
                   "opacity_texture")
 TEXTURE_DIR = "textures"  # under <cache>/assets: embedded glTF textures by content hash
@@ -72,7 +73,7 @@ def convert_parts(
         parts = prepare(parts)
     rows = []
     for i, part in enumerate(parts):
-        mesh = finish(part.mesh)
+        mesh = with_box_uvs(finish(part.mesh))  # a texture given to a part shows, as in Blender
         ply, mesh_key = assets.store_mesh(mesh, f"{key}.{i}", cache)
         mat = asdict(part.material)
         for k in TEXTURE_FIELDS:

@@ -18,12 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from ..assets.library import furniture, textures
+from ..assets.library import pictures as picture_library
 from ..model.colour import kelvin_rgb
 from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
 # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed. 3: room parameters,
 # workshop and shop kinds, a lamp per room, fixed furnished rooms. 4: clutter on furniture tops.
-GENERATOR_VERSION = 4
+# 5: framed photographs on the walls.
+GENERATOR_VERSION = 5
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -49,6 +51,7 @@ class RoomParams:
     middle_pieces: tuple[int, int] = (1, 2)
     categories: tuple[str, ...] | None = None  # catalogue categories instead of the kind's
     clutter: tuple[int, int] = (1, 3)  # small catalogue items on each furniture top
+    pictures: tuple[int, int] = (1, 3)  # framed photographs on the walls
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
@@ -57,6 +60,7 @@ DYES = ((0.6, 0.12, 0.1), (0.1, 0.25, 0.55), (0.15, 0.4, 0.2), (0.55, 0.45, 0.1)
         (0.08, 0.35, 0.4), (0.5, 0.3, 0.2), (0.7, 0.55, 0.4))
 WALL = 0.1  # wall thickness, metres
 GAP = 0.06  # free space kept between pieces of furniture
+REDRESS = 0.75  # probability that a plain wood-like or fabric-like material gets a texture
 
 
 @dataclass(frozen=True)
@@ -217,16 +221,18 @@ WOOD_WORDS = ("wood", "table", "top", "desk", "shelf", "cabinet", "drawer", "mad
 
 
 def redress(rng, item: furniture.FurnitureItem, cache: Path, woods: list, felt) -> tuple[dict, list[dict]]:
-    """Domain randomisation of one piece: its plain (untextured) wood-like and fabric-like materials,
-    told apart by their names, get a wood texture or a dyed felt, each with probability one half.
+    """Domain randomisation of one piece: its plain wood-like and fabric-like materials (no texture,
+    or one whose file the model lacks), told apart by their names, get a wood texture or a dyed
+    felt, each with probability ``REDRESS``.
     -> (``materials:`` overrides by name, credits of the textures used)."""
     from ..assets.meshfiles import obj as obj_reader
 
     overrides, credits = {}, []
     mats = obj_reader.materials_of(furniture.extract(item, cache))
-    for name, (mat, _) in sorted(mats.items()):
+    for name, (mat, lib) in sorted(mats.items()):
         low = name.lower()
-        if mat.map_kd or rng.random() < 0.5:
+        textured = bool(mat.map_kd) and obj_reader.texture_path(lib, mat.map_kd).is_file()  # some name lost files
+        if textured or rng.random() < 1.0 - REDRESS:
             continue
         if felt is not None and any(w in low for w in FABRIC_WORDS):
             dye = DYES[int(rng.integers(len(DYES)))]
@@ -271,6 +277,77 @@ def _lamp(rng, placed: list[Placed], W: float, D: float, small: list[SceneMesh])
         x, y, z = W / 2 - 0.4, D / 2 - 0.4, 1.5
     return LightDef(kind="point", power=float(rng.uniform(10, 35)), color=kelvin_rgb(float(rng.uniform(2400, 3200))),
                     translation=(float(x), float(y), float(z)))
+
+
+FRAMES = ((0.05, 0.05, 0.05), (0.9, 0.9, 0.88), (0.35, 0.22, 0.12), (0.6, 0.5, 0.3))  # black, white, walnut, oak
+# Each wall by its inward normal, as (name, yaw of a picture facing into the room).
+WALL_YAW = {"north": 0.0, "south": 180.0, "east": -90.0, "west": 90.0}
+
+
+def _on_wall(wall: str, W: float, D: float, s: float, w: float) -> tuple[float, float, tuple]:
+    """A picture ``w`` wide centred ``s`` metres along ``wall`` (from its left end seen from the
+    room) -> its centre (x, y) 2 cm off the wall, and the floor strip in front of it (x0, y0, x1,
+    y1; 0.6 m deep) where furniture would stand in its way."""
+    deep, off = 0.6, 0.02
+    if wall == "north":
+        x = -W / 2 + s
+        return x, D / 2 - off, (x - w / 2, D / 2 - deep, x + w / 2, D / 2)
+    if wall == "south":
+        x = W / 2 - s
+        return x, -D / 2 + off, (x - w / 2, -D / 2, x + w / 2, -D / 2 + deep)
+    if wall == "east":
+        y = D / 2 - s
+        return W / 2 - off, y, (W / 2 - deep, y - w / 2, W / 2, y + w / 2)
+    y = -D / 2 + s
+    return -W / 2 + off, y, (-W / 2, y - w / 2, -W / 2 + deep, y + w / 2)
+
+
+def pictures(rng, W: float, D: float, H: float, window, placed: list[Placed], count: tuple[int, int],
+             library: list) -> tuple[list[SceneMesh], list[dict]]:
+    """Framed photographs on the walls, centred 1.1-1.9 m up: clear of the window, of each other and
+    of any furniture within 0.6 m of the wall that reaches their bottom edge (a try that does not
+    fit is skipped) -> their meshes and credits."""
+    n = int(rng.integers(count[0], count[1] + 1))
+    if not library or n == 0:
+        return [], []
+    meshes, credits, hung = [], [], []
+    for k in range(n):
+        pic = library[int(rng.integers(len(library)))]
+        h = float(rng.uniform(0.35, 0.7))
+        w, border = h * pic.aspect, float(rng.uniform(0.02, 0.06))
+        wall = ("north", "south", "east", "west")[int(rng.integers(4))]
+        length = W if wall in ("north", "south") else D
+        s = float(rng.uniform(0.3 + w / 2, max(0.31 + w / 2, length - 0.3 - w / 2)))
+        z = float(rng.uniform(1.1, 1.9))
+        frame = FRAMES[int(rng.integers(len(FRAMES)))]
+        fits = w + 2 * border <= length - 0.6 and z + h / 2 + border <= H - 0.1
+        if not fits or not _free(wall, s, w + 2 * border, z - h / 2 - border, window, W, D, placed, hung):
+            continue
+        hung.append((wall, s - w / 2 - border, s + w / 2 + border))
+        x, y, _ = _on_wall(wall, W, D, s, w)
+        rot = (0.0, 0.0, WALL_YAW[wall])
+        meshes += [
+            SceneMesh(name=f"picture_{k}_frame", source={"box": (w + 2 * border, 0.03, h + 2 * border)},
+                      transform=Transform(translation=(x, y, z), rotation=rot), collide=False,
+                      material=SceneMaterial(base_color=frame, roughness=0.5)),
+            SceneMesh(name=f"picture_{k}", source={"box": (w, 0.031, h)}, collide=False,
+                      transform=Transform(translation=(x, y, z), rotation=rot),
+                      material=SceneMaterial(texture=str(pic.path), uv_scale=(1.0 / w, 1.0 / h), roughness=0.35,
+                                             specular=0.4)),
+        ]
+        credits.append(pic.credit)
+    return meshes, credits
+
+
+def _free(wall: str, s: float, w: float, bottom: float, window, W: float, D: float, placed: list[Placed],
+          hung) -> bool:
+    """No window, picture or piece of furniture reaching ``bottom`` where a picture would hang."""
+    if any(h[0] == wall and s - w / 2 - 0.1 < h[2] and h[1] < s + w / 2 + 0.1 for h in hung):
+        return False
+    _, _, (x0, y0, x1, y1) = _on_wall(wall, W, D, s, w)
+    if wall == "north" and x0 < window[1] + 0.15 and window[0] - 0.15 < x1:
+        return False
+    return not any(p.item.size[2] >= bottom - 0.05 and _overlaps((x0, y0, x1, y1), [p]) for p in placed)
 
 
 def random_room(seed: int, cache: Path, kind: str | None = None,
@@ -323,13 +400,16 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     ]
     world = World(envmap=OUTDOOR_HDRIS[int(rng.integers(len(OUTDOOR_HDRIS)))], strength=float(rng.uniform(0.4, 0.9)),
                   rotation=float(rng.uniform(0, 360)))
+    # Drawn last, so that adding them left every earlier draw (and so the furniture) as it was.
+    hung, hung_credits = pictures(rng, W, D, H, window, placed, params.pictures, picture_library.available())
+    meshes += hung
     sf = SceneFile(name=f"random_room_{kind}", meshes=meshes, lights=lights, world=world,
                    description=f"random_room seed {seed}, kind {kind}, {len(placed)} pieces of furniture")
     credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed] + dressed_credits
     credits += [furniture.find(m.source.furniture).credit for m in small]
     if any(m.name == "rug" for m in meshes):
         credits.append(felt.credit)
-    return sf, credits
+    return sf, credits + hung_credits
 
 
 # Built-in furnished rooms: one fixed room per kind (a seed picked so that the room has ten or more

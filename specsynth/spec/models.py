@@ -180,12 +180,21 @@ class RoomOptions(Strict):
                                          "(see `specsynth furniture`) instead of the kinds' own.")
     clutter: IntRange(0) = Field((1, 3), description="Small catalogue items (books, cups, plants, toys) standing "
                                  "on each furniture top, [min, max]; stages are found around them.")
+    pictures: IntRange(0) = Field((1, 3), description="Framed photographs (scikit-image's public-domain and CC0 "
+                                     "samples) hung on the walls, [min, max].")
 
     @field_validator("clutter")
     @classmethod
     def _clutter(cls, v):
         if v[1] > 10:
             raise ValueError("at most 10 clutter items per furniture top")
+        return v
+
+    @field_validator("pictures")
+    @classmethod
+    def _pictures(cls, v):
+        if v[1] > 6:
+            raise ValueError("at most 6 pictures per room")
         return v
 
 

@@ -94,6 +94,26 @@ def cylinder(radius: float, height: float, segments: int = 48) -> MeshData:
     )
 
 
+def with_box_uvs(mesh: MeshData) -> MeshData:
+    """``mesh`` with UVs by box projection in metres (as the primitives have), when it has none:
+    each face is projected along the axis its normal is closest to, as Blender's generated
+    coordinates let a texture show on a model without UVs; a vertex shared by faces projected
+    along different axes is split."""
+    if mesh.uv is not None or len(mesh.faces) == 0:
+        return mesh
+    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    axis = np.argmax(np.abs(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])), axis=1)
+    corners, faces = np.unique((f * 3 + axis[:, None]).ravel(), return_inverse=True)
+    src, ax = corners // 3, corners % 3
+    uv = np.take_along_axis(v[src], np.array([[1, 2], [0, 2], [0, 1]])[ax], axis=1)
+
+    def take(a):
+        return None if a is None else np.asarray(a)[src]
+
+    return MeshData(vertices=take(mesh.vertices), faces=faces.reshape(-1, 3).astype(np.int32), normals=take(mesh.normals),
+                    uv=uv.astype(np.float32), colors=take(mesh.colors))
+
+
 def _fix_winding(mesh: MeshData) -> MeshData:
     """Flip any triangle whose geometric normal disagrees with its vertex normals (outward)."""
     v, f = mesh.vertices, mesh.faces.copy()
