@@ -160,11 +160,11 @@ def test_random_room_parameters_from_the_spec(cache, tmp_path):
     floor = next(m for m in desc.meshes if m.name == "floor")
     v = read_mesh(floor.mesh_path).vertices
     assert np.ptp(v[:, 0]) == pytest.approx(4.0, abs=1e-4) and np.ptp(v[:, 1]) == pytest.approx(3.5, abs=1e-4)
-    from specsynth.scenes.random_room import clutter_items, kind_items
+    from specsynth.scenes.random_room import kind_items
 
     ids = {i.id for i in kind_items("workshop")}
     used = {c["asset"].removeprefix("furniture:") for c in desc.credits if c["asset"].startswith("furniture:")}
-    clutter = {i.id for i in clutter_items()}
+    clutter = {i.id for i in furniture.small_items()}
     assert used & ids and used - ids <= clutter  # workshop furniture, and small items on its tops
     with pytest.raises(ValueError, match="for the scene 'random_room' only"):
         SceneRef(name="room", room={"kinds": ["shop"]})
@@ -174,9 +174,9 @@ def test_clutter_stands_on_open_tops_and_leaves_stages(cache):
     """Small catalogue items stand on tables, counters and cabinets (at the top's height, inside its
     footprint, apart from each other) and are credited; the rooms keep stages above the floor."""
     from specsynth.assets.library import furniture
-    from specsynth.scenes.random_room import clutter_items, open_top, random_room
+    from specsynth.scenes.random_room import open_top, random_room
 
-    small = {i.id for i in clutter_items()}
+    small = {i.id for i in furniture.small_items()}
     seen = 0
     for seed in range(6):
         sf, credits = random_room(seed, cache)

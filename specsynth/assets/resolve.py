@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_write_bytes
-from ..model.colour import srgb_to_linear
+from ..model.colour import linear_to_srgb, srgb_to_linear
 from ..model.conventions import rpy_matrix
 from ..model.ir import MaterialIR
 from ..spec import models as spec_mod
@@ -87,6 +87,8 @@ class ObjectAsset:
     @property
     def credit(self) -> dict[str, str] | None:
         """Attribution of a built-in (third-party) model; a user's own model needs none."""
+        if self.source.startswith("furniture:"):
+            return _catalogue_item(self.name).credit
         if not self.source.startswith("pybullet_data:"):
             return None
         return {"asset": f"object:{self.name}", "name": self.name, "author": "pybullet_data contributors",
@@ -193,6 +195,31 @@ _BUILTINS: dict[str, _Builtin] = {
     "toys/prism": _Builtin(mesh="toys/prism.obj"),
     "toys/shape_sorter": _Builtin(mesh="toys/shape_sorter.obj", scale=0.5),
 }
+
+
+CATALOGUE = "catalogue/"  # built-in names of small furniture-library models: catalogue/<item id>
+
+
+def catalogue_objects() -> list[str]:
+    """The furniture library's small items (books, cups, plants, toys) as built-in object names."""
+    from .library import furniture
+
+    try:
+        return [f"{CATALOGUE}{i.id}" for i in furniture.small_items()]
+    except furniture.LibraryError:
+        return []
+
+
+def _catalogue_item(name: str):
+    from .library import furniture
+
+    item_id = name.removeprefix(CATALOGUE)
+    try:
+        return furniture.find(item_id)
+    except (KeyError, furniture.LibraryError) as e:
+        close = difflib.get_close_matches(item_id, [i.id for i in furniture.small_items()], n=3)
+        hint = f" (did you mean {', '.join(CATALOGUE + c for c in close)}?)" if close else ""
+        raise AssetError(f"built-in object {name!r}: not in the furniture library{hint}") from e
 
 
 def builtin_objects() -> list[str]:
@@ -354,6 +381,10 @@ class _Source:
 
     def files(self) -> list[Path]:
         """Every file whose bytes determine the converted asset (fast: no mesh parsing)."""
+        if self.kind == "catalogue":  # the library archive the model is unpacked from
+            from .library import furniture
+
+            return [furniture.library_dir() / f"{_catalogue_item(self.name).archive}.sh3f"]
         if self.kind == "builtin":
             b = self.builtin
             root = pybullet_data_root()
@@ -382,6 +413,8 @@ class _Source:
                                                          self.builtin.real_diameter, BUILTIN_ORIGIN],
             "files": [file_digest(p, self.label) for p in self.files()],
         }
+        if self.kind == "catalogue":  # one archive holds many models
+            params["item"] = self.name
         return _hash_json(params)
 
 
@@ -464,7 +497,9 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
             oid = next_id
             used.add(oid)
             next_id = max(used) + 1
-        if kind == "builtin":
+        if kind == "builtin" and item.name.startswith(CATALOGUE):
+            src = _Source(item.name, "catalogue", oid, None, "m", f"furniture:{_catalogue_item(item.name).id}")
+        elif kind == "builtin":
             b = _builtin_def(item.name)
             path = pybullet_data_root() / (b.urdf or b.mesh)
             src = _Source(item.name, "builtin", oid, path, "m", f"pybullet_data:{item.name}", b)
@@ -492,6 +527,8 @@ def _convert(src: _Source) -> tuple[MeshData, str | None, tuple[float, float, fl
     """Source -> (mesh in metres, texture path or None, linear base colour or None)."""
     if src.kind == "builtin":
         return _convert_builtin(src)
+    if src.kind == "catalogue":
+        return _convert_catalogue(src), None, None
     mesh, tex_name = read_any_mesh(src.path)
     mesh = finish_mesh(mesh, src.label)
     texture = None
@@ -558,6 +595,39 @@ def _convert_builtin(src: _Source):
     return finish_mesh(mesh, src.label), texture, colour
 
 
+def _convert_catalogue(src: _Source) -> MeshData:
+    """A small library model as one object: sized to the catalogue, +Z up, its origin at the centre
+    of its bounding box (as BOP's models); each part's colour (its base colour times its texture's
+    mean, when it has one) baked into vertex colours, so every backend and BOP's model carry it."""
+    from . import furnish
+    from .library import furniture
+    from .meshfiles import primitives, read_parts
+
+    item = _catalogue_item(src.name)
+    cache = cache_dir()
+    parts = furnish.normalise_parts(read_parts(furniture.extract(item, cache), cache / "assets" / "textures"), item)
+    meshes = []
+    for part in parts:
+        colour = np.asarray(part.material.base_color, np.float64)
+        if part.material.texture:
+            colour = colour * _mean_linear_colour(Path(part.material.texture))
+        srgb = np.clip(np.rint(linear_to_srgb(colour) * 255), 0, 255).astype(np.uint8)
+        rgba = np.tile(np.append(srgb, 255).astype(np.uint8), (len(part.mesh.vertices), 1))
+        meshes.append(replace(part.mesh, uv=None, colors=rgba))
+    mesh = primitives.concatenate(meshes)
+    v = mesh.vertices.astype(np.float64)
+    mesh = replace(mesh, vertices=(v - (v.min(0) + v.max(0)) / 2).astype(np.float32))
+    return finish_mesh(mesh, src.label)
+
+
+def _mean_linear_colour(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        rgb = np.asarray(im.convert("RGB").resize((32, 32)), np.float64) / 255.0
+    return srgb_to_linear(rgb).reshape(-1, 3).mean(0)
+
+
 def check_texture(path: Path, what: str) -> None:
     """A texture that exists must decode: a corrupt one would render as garbage or crash a worker."""
     from PIL import Image
@@ -621,7 +691,7 @@ def _load_or_convert(src: _Source, cache: Path) -> dict:
     if texture is not None:
         texture = str(store_texture(Path(texture), cache))
     tex_missing = None
-    if texture is None and src.kind != "builtin":
+    if texture is None and src.kind in ("bop", "mesh"):
         named = _bop_texture_path(src.path)
         tex_missing = named.name if named is not None and not named.is_file() else None
     meta = {

@@ -16,6 +16,7 @@ from typing import Iterator
 from ..assets.resolve import (
     AssetError,
     builtin_objects,
+    catalogue_objects,
     check_texture,
     expand_path,
     file_digest,
@@ -237,9 +238,9 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
             check_texture(tex, field)
         except AssetError as e:
             problems.append(loaded.locate(field, str(e)))
-    known = set(builtin_objects())
+    known = set(builtin_objects()) | set(catalogue_objects()) | {"random_urdfs/*", "catalogue/*"}
     for k, name in enumerate(spec.arrangements.distractors.objects):
-        if name != "random_urdfs/*" and name not in known:
+        if name not in known:
             field = f"arrangements.distractors.objects.{k}"
             problems.append(loaded.locate(field, f"unknown built-in object {name!r} (see specsynth.assets.resolve.builtin_objects)"))
     scene_hashes = {}

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..assets.resolve import ObjectAsset
+from ..assets.resolve import ObjectAsset, catalogue_objects
 from ..model.records import ArrangementRecord, PlacedObject
 from ..plan import seeds
 from ..plan.compiler import Job
@@ -87,13 +87,21 @@ def swapped_credits(w: Worker, rec: ArrangementRecord, ref: SceneRef) -> list[di
 
 
 def draw_distractors(d, rng: np.random.Generator) -> list[str]:
-    """The built-in objects dropped as distractors in one arrangement."""
+    """The built-in objects dropped as distractors in one arrangement: each uniform over the named
+    ones and the members of the wildcards (pybullet_data's 1000 random shapes, the library's small
+    items)."""
     lo, hi = d.count
     n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
-    pool = [o for o in d.objects if o != "random_urdfs/*"]
+    pool = [o for o in d.objects if not o.endswith("/*")]
     wild = "random_urdfs/*" in d.objects
+    catalogue = catalogue_objects() if "catalogue/*" in d.objects else []
     out = []
     for _ in range(n):
-        k = int(rng.integers(len(pool) + (1000 if wild else 0)))
-        out.append(pool[k] if k < len(pool) else f"random_urdfs/{k - len(pool):03d}")
+        k = int(rng.integers(len(pool) + (1000 if wild else 0) + len(catalogue)))
+        if k < len(pool):
+            out.append(pool[k])
+        elif wild and k < len(pool) + 1000:
+            out.append(f"random_urdfs/{k - len(pool):03d}")
+        else:
+            out.append(catalogue[k - len(pool) - (1000 if wild else 0)])
     return out

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
-from ..assets import meshfiles
+from ..assets import furnish, meshfiles
 from ..assets import resolve as assets
 from ..assets.library import furniture, textures
 from ..assets.meshfiles import primitives as procedural
@@ -30,7 +30,7 @@ from ..assets.meshio import MeshData, read_mesh
 from ..assets.resolve import AssetError
 from ..model.conventions import rpy_matrix
 from ..model.ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
-from . import autostage, filemeshes, furnish, gltfscene, random_room
+from . import autostage, filemeshes, gltfscene, random_room
 from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
 from .types import SceneDesc, Stage
 

@@ -128,16 +128,6 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int) -> list[Placed
     return placed
 
 
-CLUTTER_MAX = 0.45  # metres: catalogue items up to this size are clutter (books, cups, plants, toys)
-CLUTTER_CATEGORIES = ("Kitchen", "Office", "Living room", "Bedroom", "Miscellaneous")
-
-
-def clutter_items() -> list[furniture.FurnitureItem]:
-    """Small free-standing catalogue items: what stands on real tables, shelves and counters."""
-    return [i for i in furniture.catalogue() if i.category in CLUTTER_CATEGORIES and max(i.size) <= CLUTTER_MAX
-            and i.elevation == 0 and not i.light and not i.door_or_window and min(i.size[0], i.size[1]) > 0.03]
-
-
 TOP_WORDS = re.compile(r"table|desk|cabinet|chest|dresser|counter|sideboard|drawer|commode|buffet|worktop|"
                        r"sink|dishwasher|washing machine|bench|crate|trunk", re.I)
 
@@ -387,7 +377,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
         dressed_credits += used
         meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id}, materials=overrides,
                                 transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
-    small = clutter(rng, placed, clutter_items(), params.clutter)
+    small = clutter(rng, placed, furniture.small_items(), params.clutter)
     meshes += small
     ceiling_colour = kelvin_rgb(float(rng.uniform(3000, 6500)))
     lights = [

@@ -270,23 +270,31 @@ class Distractors(Strict):
     count: IntRange(0) = Field((0, 0), description="Distractors per arrangement, [min, max].")
     objects: list[str] = Field(
         ["random_urdfs/*"], min_length=1,
-        description="Built-in objects to draw from (see specsynth.assets.resolve.builtin_objects): names, or "
-        "'random_urdfs/*' for pybullet_data's 1000 random shapes.")
+        description="Built-in objects to draw from (see specsynth.assets.resolve.builtin_objects): names, "
+        "'random_urdfs/*' for pybullet_data's 1000 random shapes, 'catalogue/*' for the furniture library's 163 "
+        "small items (books, cups, plants, toys; `specsynth furniture`), or one of them as 'catalogue/<id>'.")
     annotate: bool = Field(
         False, description="Annotate the distractors too (BOP's 'other objects'): each distractor model gets an obj_id "
         "after the dataset's objects, stable across builds (N + 1 + its position in 'objects'; random_urdfs/k after "
         "the named ones), its model in bop/models, masks, boxes and poses like any object.")
 
+    @model_validator(mode="after")
+    def _annotated_catalogue(self):
+        if self.annotate and "catalogue/*" in self.objects:
+            raise ValueError("annotated distractors need stable obj_ids: list the catalogue items by name "
+                             "('catalogue/<id>', see `specsynth furniture`) instead of 'catalogue/*'")
+        return self
+
     def obj_id(self, name: str, n_objects: int) -> int:
         """The obj_id an annotated distractor ``name`` gets when the dataset has ``n_objects`` objects."""
-        named = [o for o in self.objects if o != "random_urdfs/*"]
+        named = [o for o in self.objects if not o.endswith("/*")]
         if name in named:
             return n_objects + 1 + named.index(name)
         return n_objects + 1 + len(named) + int(name.rsplit("/", 1)[1])
 
     def name_of(self, obj_id: int, n_objects: int) -> str:
         """Inverse of :meth:`obj_id`."""
-        named = [o for o in self.objects if o != "random_urdfs/*"]
+        named = [o for o in self.objects if not o.endswith("/*")]
         k = obj_id - n_objects - 1
         return named[k] if k < len(named) else f"random_urdfs/{k - len(named):03d}"
 

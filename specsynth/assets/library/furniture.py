@@ -131,6 +131,17 @@ def _by_id(folder: str) -> dict[str, FurnitureItem]:
     return {item.id: item for item in _catalogue(folder)}
 
 
+SMALL_MAX = 0.45  # metres: catalogue items up to this size are small (books, cups, plants, toys)
+SMALL_CATEGORIES = ("Kitchen", "Office", "Living room", "Bedroom", "Miscellaneous")
+
+
+def small_items() -> list[FurnitureItem]:
+    """Small free-standing catalogue items: what stands on real tables, shelves and counters
+    (``random_room``'s clutter) or is dropped among the objects (``catalogue/*`` distractors)."""
+    return [i for i in catalogue() if i.category in SMALL_CATEGORIES and max(i.size) <= SMALL_MAX
+            and i.elevation == 0 and not i.light and not i.door_or_window and min(i.size[0], i.size[1]) > 0.03]
+
+
 def find(item_id: str) -> FurnitureItem:
     item = _by_id(str(library_dir())).get(item_id)
     if item is not None:

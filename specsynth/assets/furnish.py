@@ -13,9 +13,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..assets.library.furniture import FurnitureItem
-from ..assets.meshfiles.part import Y_UP_TO_Z_UP, Part
-from ..assets.meshio import MeshData
+from .library.furniture import FurnitureItem
+from .meshfiles.part import Y_UP_TO_Z_UP, Part
+from .meshio import MeshData
 
 
 def furniture_matrix(item: FurnitureItem, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
