@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from specsynth.assets.meshio import MeshData, write_mesh
 from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
@@ -312,3 +314,48 @@ def test_new_arrangement_reuses_kernels(backend, tmp_path):
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert not misses
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-10, 10), min_size=9, max_size=9))
+def test_mesh_normals_use_the_exact_inverse(entries):
+    """build_mesh's 3x3 inverse (cofactors, not LAPACK) equals numpy's wherever numpy's is finite."""
+    from specsynth_mitsuba.scene import _inverse3
+
+    R = np.asarray(entries, np.float64).reshape(3, 3)
+    assume(abs(np.linalg.det(R)) > 1e-3 * max(1.0, np.abs(R).max()) ** 3)
+    assert np.allclose(_inverse3(R), np.linalg.inv(R), rtol=1e-7, atol=1e-9 * np.abs(np.linalg.inv(R)).max())
+
+
+def test_parts_sharing_a_texture_render_as_with_their_own(backend, tmp_path, monkeypatch):
+    """A scene whose parts share one texture decodes it once; each part still gets its own
+    base-colour factor (the render equals the one with the texture copied per part)."""
+    import shutil
+
+    from PIL import Image
+
+    tex = tmp_path / "t.png"
+    Image.fromarray((np.indices((16, 16)).sum(0) % 2 * 200 + 30).astype(np.uint8)).convert("RGB").save(tex)
+    copy = tmp_path / "t2.png"
+    shutil.copy(tex, copy)
+    light = LightIR(kind="area", pose=_pose((0, 0, 2)), power=80.0)
+    cam = _camera((0, -2, 1.5), (0, 0, 0))
+
+    def scene(second: str):
+        a = MeshInstance("a", _quad(tmp_path, uv=True), "qa", _pose((-0.6, 0, 0)),
+                         MaterialIR(texture=str(tex), base_color=(1.0, 0.5, 0.5)))
+        b = MeshInstance("b", _quad(tmp_path, uv=True), "qb", _pose((0.6, 0, 0)),
+                         MaterialIR(texture=second, base_color=(0.5, 0.5, 1.0)))
+        return RenderScene(meshes=(a, b), lights=(light,))
+
+    from specsynth_mitsuba import scene as scene_mod
+
+    decodes = []
+    real = scene_mod._linear_rgb
+    monkeypatch.setattr(scene_mod, "_linear_rgb", lambda mi_, path: decodes.append(path) or real(mi_, path))
+    backend.load(scene(str(tex)))
+    shared = backend.render(cam, _spp(4), seed=3).linear
+    assert decodes == [str(tex)]
+    backend.load(scene(str(copy)))
+    own = backend.render(cam, _spp(4), seed=3).linear
+    assert decodes[1:] == [str(tex), str(copy)] and np.array_equal(shared, own)

@@ -39,12 +39,8 @@ def _sampling(mi, material: MaterialIR, nearest: bool = False) -> dict:
     return out
 
 
-def _texture_scaled(mi, path: str, scale, material: MaterialIR) -> dict:
-    """An sRGB colour texture times a constant colour, in linear floats.
-
-    Mitsuba has no 'multiply' texture for constants, so the factor is baked into the pixels once
-    per arrangement (cheap next to the render), which keeps the shading exactly factor * texture.
-    """
+def _linear_rgb(mi, path: str) -> np.ndarray:
+    """A colour texture's pixels as linear float RGB (8/16-bit images are sRGB-encoded by convention)."""
     bmp = _read_bitmap(mi, str(path))
     arr = np.asarray(bmp, dtype=np.float32)
     if arr.ndim == 2:
@@ -52,14 +48,28 @@ def _texture_scaled(mi, path: str, scale, material: MaterialIR) -> dict:
     arr = arr[..., :3] if arr.shape[-1] >= 3 else np.repeat(arr[..., :1], 3, axis=-1)
     if bmp.component_format() in (mi.Struct.Type.UInt8, mi.Struct.Type.UInt16):
         arr = arr / (255.0 if bmp.component_format() == mi.Struct.Type.UInt8 else 65535.0)
-        arr = srgb_to_linear(arr)  # 8/16-bit colour images are sRGB-encoded by convention
-    arr = np.ascontiguousarray(arr * np.asarray(scale, dtype=np.float32))
+        arr = srgb_to_linear(arr)
+    return arr
+
+
+def _texture_scaled(mi, path: str, scale, material: MaterialIR, decoded: dict | None = None) -> dict:
+    """An sRGB colour texture times a constant colour, in linear floats.
+
+    Mitsuba has no 'multiply' texture for constants, so the factor is baked into the pixels once
+    per arrangement (cheap next to the render), which keeps the shading exactly factor * texture.
+    ``decoded`` (path -> linear pixels) lets the parts of one scene that share a texture (a room's
+    walls, furniture re-dressed in one wood) decode it once.
+    """
+    decoded = {} if decoded is None else decoded
+    if path not in decoded:
+        decoded[path] = _linear_rgb(mi, path)
+    arr = np.ascontiguousarray(decoded[path] * np.asarray(scale, dtype=np.float32))
     return {"type": "bitmap", "bitmap": mi.Bitmap(arr), "raw": True, **_sampling(mi, material)}
 
 
-def _texture_base(mi, material: MaterialIR) -> dict:
+def _texture_base(mi, material: MaterialIR, decoded: dict | None = None) -> dict:
     """Base-colour texture premultiplied by base_color."""
-    return _texture_scaled(mi, material.texture, material.base_color, material)
+    return _texture_scaled(mi, material.texture, material.base_color, material, decoded)
 
 
 def _grey_map(mi, path: str, material: MaterialIR, nearest: bool = False) -> dict:
@@ -102,15 +112,15 @@ def mitsuba_material(material: MaterialIR, calibrate: bool = True) -> MaterialIR
     return dataclasses.replace(material, base_color=tuple(float(c) * k for c in material.base_color), specular=spec)
 
 
-def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool) -> dict:
+def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool, decoded: dict | None = None) -> dict:
     """Base colour = base_color x vertex colour x texture, as in the Cycles backend; base_color is
     baked into whichever of the other two is present. ``material`` is what ``mitsuba_material``
     returns (build_mesh premultiplies vertex colours by its base_color too)."""
     if material.texture is not None and vertex_colored:
-        tex = _texture_base(mi, dataclasses.replace(material, base_color=(1.0, 1.0, 1.0)))
+        tex = _texture_base(mi, dataclasses.replace(material, base_color=(1.0, 1.0, 1.0)), decoded)
         base = {"type": PRODUCT, "a": {"type": "mesh_attribute", "name": VERTEX_COLOR}, "b": tex}
     elif material.texture is not None:
-        base = _texture_base(mi, material)
+        base = _texture_base(mi, material, decoded)
     elif vertex_colored:
         base = {"type": "mesh_attribute", "name": VERTEX_COLOR}
     else:
@@ -148,20 +158,26 @@ def _surface(mi, material: MaterialIR, bsdf: dict) -> dict:
     return bsdf
 
 
-def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True):
+def _inverse3(R: np.ndarray) -> np.ndarray:
+    """Inverse of a 3x3 matrix by its cofactors (numpy's LAPACK call costs ~2 ms here, per mesh)."""
+    C = np.array([np.cross(R[1], R[2]), np.cross(R[2], R[0]), np.cross(R[0], R[1])])
+    return C.T / float(np.dot(R[0], C[0]))
+
+
+def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True, decoded: dict | None = None):
     T = inst.matrix
     R, t = T[:3, :3], T[:3, 3]
     v = data.vertices.astype(np.float64) @ R.T + t
     n = None
     if data.normals is not None:
-        n = data.normals.astype(np.float64) @ np.linalg.inv(R)  # (R^-T n) as rows
+        n = data.normals.astype(np.float64) @ _inverse3(R)  # (R^-T n) as rows
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
     m = mitsuba_material(inst.material, calibrate)
     if m.textures and data.uv is None:
         raise ValueError(f"mitsuba: material of {inst.name!r} has a texture but its mesh has no UVs")
     vertex_colored = m.use_vertex_colors and data.colors is not None
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf_dict(mi, m, vertex_colored))
+    props["bsdf"] = mi.load_dict(bsdf_dict(mi, m, vertex_colored, decoded))
     if any(c > 0 for c in m.emission):
         props["emitter"] = mi.load_dict(emitter_dict(mi, m))
     mesh = mi.Mesh(
@@ -260,8 +276,9 @@ def world_dict(world: WorldIR) -> dict | None:
 def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData], calibrate: bool = True) -> dict:
     """``meshes`` maps mesh_key -> arrays (the backend's cache)."""
     d: dict = {"type": "scene"}
+    decoded: dict = {}  # texture path -> linear pixels, for this scene only
     for i, inst in enumerate(scene.meshes):
-        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key], calibrate)
+        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key], calibrate, decoded)
     for i, light in enumerate(scene.lights):
         ld = light_dict(light)
         for k in ("to_world",):
