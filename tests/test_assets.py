@@ -333,3 +333,30 @@ def test_box_uvs_project_each_face_along_its_axis_in_metres(seed):
     keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]
     expected = np.take_along_axis(tri, np.repeat(keep[:, None, :], 3, axis=1), axis=2)
     assert np.allclose(out.uv[out.faces], expected, atol=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 31), st.integers(2, 80))
+def test_overlapping_coplanar_faces_keep_a_largest_first_cover(seed, n):
+    """In a plane crowded with triangles (some planes small, some over the all-pairs size), the kept
+    faces never overlap each other, and every dropped face overlaps a kept face at least as large."""
+    from specsynth.assets.meshio import MeshData
+    from specsynth.assets.repair import drop_overlapping, triangles_overlap
+
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0, 2, (n, 2))
+    tri2 = centres[:, None, :] + rng.uniform(-0.3, 0.3, (n, 3, 2))
+    v = np.concatenate([tri2.reshape(-1, 2), np.full((3 * n, 1), 0.5)], axis=1).astype(np.float32)
+    f = np.arange(3 * n).reshape(n, 3)
+    out = drop_overlapping(MeshData(vertices=v, faces=f))
+    t = v[:, :2].astype(np.float64)[f]
+    area = np.abs(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
+    kept = sorted({int(x) // 3 for x in out.faces[:, 0]})
+    dropped = sorted(set(range(n)) - set(kept))
+    for a in kept:
+        others = [b for b in kept if b != a]
+        if others:
+            assert not triangles_overlap(np.repeat(t[a : a + 1], len(others), 0), t[others]).any()
+    for d in dropped:
+        over = triangles_overlap(np.repeat(t[d : d + 1], len(kept), 0), t[kept])
+        assert any(area[k] >= area[d] - 1e-12 for k, o in zip(kept, over) if o)

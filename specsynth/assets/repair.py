@@ -20,6 +20,7 @@ PLANE_ANGLE = 1e-3  # unit-normal components, rounded: faces within ~0.06 degree
 PLANE_OFFSET = 1e-4  # metres: faces within 0.1 mm of one plane share it
 OVERLAP = 1e-4  # metres: faces must overlap by more than this (touching edges do not count)
 MAX_PLANE_FACES = 4000  # larger planar tessellations (terrain, scans) are not searched: O(n^2) worst case
+SMALL_PLANE = 48  # planes of up to this many faces are tested all pairs at once
 
 
 def _planes(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -34,15 +35,6 @@ def _planes(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     offset = np.einsum("fj,fj->f", canon, v[f[:, 0]])
     key = np.column_stack([np.round(canon / PLANE_ANGLE), np.round(offset / PLANE_OFFSET)]).astype(np.int64)
     return canon, key, area2
-
-
-def _in_plane(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) triangle corners -> (..., 3, 2) coordinates in a basis of the plane."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(normal, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
-    return np.stack([points @ e1, points @ e2], axis=-1)
 
 
 def triangles_overlap(a: np.ndarray, b: np.ndarray, margin: float = OVERLAP) -> np.ndarray:
@@ -60,18 +52,41 @@ def triangles_overlap(a: np.ndarray, b: np.ndarray, margin: float = OVERLAP) -> 
     return out
 
 
-def _first_cover(tri: np.ndarray, area2: np.ndarray) -> np.ndarray:
-    """Of coplanar 2D triangles ``tri`` ((N, 3, 2)), which to keep: largest first, each unless it
-    overlaps one already kept."""
-    order = np.argsort(-area2, kind="stable")
-    kept = np.zeros(len(tri), bool)
+def _overlapping_pairs(tri: np.ndarray, batch: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j) of the coplanar 2D triangles ``tri`` ((N, 3, 2)) that overlap: candidates are the
+    pairs whose boxes overlap (a sweep over boxes sorted by x, built without a Python loop), then
+    the separating-axis test."""
     lo, hi = tri.min(axis=1), tri.max(axis=1)
-    for i in order:
-        k = np.flatnonzero(kept)
-        near = k[((lo[k] < hi[i] - OVERLAP) & (hi[k] > lo[i] + OVERLAP)).all(axis=1)]
-        if len(near) == 0 or not triangles_overlap(np.repeat(tri[i : i + 1], len(near), axis=0), tri[near]).any():
-            kept[i] = True
-    return kept
+    order = np.argsort(lo[:, 0], kind="stable")
+    lo_x = lo[order, 0]
+    end = np.searchsorted(lo_x, hi[order, 0] - OVERLAP, side="left")  # boxes starting before mine ends
+    counts = np.maximum(end - np.arange(len(order)) - 1, 0)
+    a = np.repeat(np.arange(len(order)), counts)
+    b = a + 1 + np.arange(len(a)) - np.repeat(np.cumsum(counts) - counts, counts)
+    i, j = order[a], order[b]
+    near = (lo[j, 1] < hi[i, 1] - OVERLAP) & (hi[j, 1] > lo[i, 1] + OVERLAP) & (hi[j, 0] > lo[i, 0] + OVERLAP)
+    i, j = i[near], j[near]
+    hit = np.zeros(len(i), bool)
+    for s in range(0, len(i), batch):
+        hit[s : s + batch] = triangles_overlap(tri[i[s : s + batch]], tri[j[s : s + batch]])
+    return i[hit], j[hit]
+
+
+def _first_cover(pairs: tuple[np.ndarray, np.ndarray], area2: np.ndarray) -> np.ndarray:
+    """Which faces to drop, given the overlapping ``pairs`` (i, j) of coplanar faces: largest first
+    (ties by index), each kept unless it overlaps one already kept. Pairs only join faces of one
+    plane, so one pass over all planes' faces gives each plane's own answer."""
+    partners: dict[int, list[int]] = {}
+    for i, j in zip(*(x.tolist() for x in pairs)):
+        partners.setdefault(i, []).append(j)
+        partners.setdefault(j, []).append(i)
+    involved = np.array(sorted(partners), np.int64)
+    kept: dict[int, bool] = {}
+    for i in involved[np.argsort(-area2[involved], kind="stable")].tolist():
+        kept[i] = not any(kept.get(j, False) for j in partners[i])
+    drop = np.zeros(len(area2), bool)
+    drop[[i for i, k in kept.items() if not k]] = True
+    return drop
 
 
 def drop_overlapping(mesh: MeshData) -> MeshData:
@@ -83,26 +98,47 @@ def drop_overlapping(mesh: MeshData) -> MeshData:
     canon, key, area2 = _planes(v, f)
     _, group = np.unique(key, axis=0, return_inverse=True)
     group = np.where(area2 > 0, group.ravel(), -1)
-    sizes = np.bincount(group[group >= 0]) if (group >= 0).any() else np.zeros(0, int)
-    drop = np.zeros(len(f), bool)
-    for g in np.flatnonzero((sizes > 1) & (sizes <= MAX_PLANE_FACES)):
-        members = np.flatnonzero(group == g)
-        tri = _in_plane(v[f[members]], canon[members[0]])
-        quick = tri.min(axis=1), tri.max(axis=1)
-        if not _any_bbox_overlap(*quick):
-            continue
-        drop[members[~_first_cover(tri, area2[members])]] = True
-    if not drop.any():
+    order = np.argsort(group, kind="stable")
+    ids, starts, sizes = np.unique(group[order], return_index=True, return_counts=True)
+    keep = (ids >= 0) & (sizes > 1) & (sizes <= MAX_PLANE_FACES)
+    ids, starts, sizes = ids[keep], starts[keep], sizes[keep]
+    rep = np.zeros(group.max() + 2, np.int64)
+    rep[ids] = order[starts]  # each plane's basis from its first face's normal
+    tri = _in_plane_each(v[f], canon[rep[np.maximum(group, 0)]])
+    small = sizes <= SMALL_PLANE
+    pairs = [_small_plane_pairs(tri, order, starts[small], sizes[small])]
+    for g_start, size in zip(starts[~small], sizes[~small]):
+        members = order[g_start : g_start + size]
+        i, j = _overlapping_pairs(tri[members])
+        pairs.append((members[i], members[j]))
+    i, j = (np.concatenate([p[k] for p in pairs]) for k in (0, 1))
+    if len(i) == 0:
         return mesh
-    return replace(mesh, faces=f[~drop].astype(mesh.faces.dtype))
+    return replace(mesh, faces=f[~_first_cover((i, j), area2)].astype(mesh.faces.dtype))
 
 
-def _any_bbox_overlap(lo: np.ndarray, hi: np.ndarray) -> bool:
-    """Whether any two of the 2D boxes overlap by more than OVERLAP (a cheap first test)."""
-    order = np.argsort(lo[:, 0])
-    lo, hi = lo[order], hi[order]
-    for i in range(len(lo) - 1):
-        j = i + 1 + np.flatnonzero(lo[i + 1 :, 0] < hi[i, 0] - OVERLAP)
-        if len(j) and ((lo[j, 1] < hi[i, 1] - OVERLAP) & (hi[j, 1] > lo[i, 1] + OVERLAP)).any():
-            return True
-    return False
+def _in_plane_each(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) triangles and (F, 3) plane normals -> (F, 3, 2) coordinates in each plane's own
+    orthonormal basis."""
+    helper = np.where((np.abs(normals[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = np.cross(normals, helper)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-30)
+    e2 = np.cross(normals, e1)
+    return np.stack([np.einsum("fkj,fj->fk", points, e1), np.einsum("fkj,fj->fk", points, e2)], axis=-1)
+
+
+def _small_plane_pairs(tri: np.ndarray, order: np.ndarray, starts: np.ndarray, sizes: np.ndarray,
+                       batch: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+    """The overlapping pairs (i, j) of faces within the small planes (``starts``/``sizes`` into
+    ``order``): every pair of every plane tested at once, grouped by plane size."""
+    out_i, out_j = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for size in np.unique(sizes):
+        members = order[starts[sizes == size][:, None] + np.arange(size)]  # (planes, size) face indices
+        a, b = np.triu_indices(size, 1)
+        i, j = members[:, a].ravel(), members[:, b].ravel()
+        hit = np.zeros(len(i), bool)
+        for s in range(0, len(i), batch):
+            hit[s : s + batch] = triangles_overlap(tri[i[s : s + batch]], tri[j[s : s + batch]])
+        out_i.append(i[hit])
+        out_j.append(j[hit])
+    return np.concatenate(out_i), np.concatenate(out_j)
