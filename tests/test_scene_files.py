@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specsynth.assets import meshfiles
 from specsynth.assets.meshio import read_mesh
@@ -201,13 +203,13 @@ def test_both_textures_show_in_a_real_render(byo, tmp_path, backend):
 def _masks_agree_with_cycles_rerender(byo: Path, out: Path) -> None:
     """The labels against an independent re-render: Cycles' own instance ids of each view."""
     from PIL import Image
+    from specsynth_cycles.backend import CyclesBackend
 
     from specsynth.model.ir import CameraIR, as_tuple
     from specsynth.model.records import ArrangementRecord, ViewRecord
     from specsynth.plan.compiler import compile_spec
     from specsynth.run.worker import BuildContext, Worker
     from specsynth.spec.yamlio import load_spec
-    from specsynth_cycles.backend import CyclesBackend
 
     graph = compile_spec(load_spec(byo / "spec.yaml", ["arrangements.count=1", "cameras.per_arrangement=2"]))
     worker = Worker(BuildContext(spec=graph.spec, spec_dir=byo, out=out))
@@ -312,9 +314,9 @@ def test_scene_without_stages_finds_them_and_show_draws_them(byo, tmp_path, caps
     heights = sorted({round(s.height, 3) for s in desc.stages.values()})
     assert heights == [0.0, 0.13, 0.72]  # the floor, the low board's top and the table top
     under_board = np.array([[x, y] for x in (-1.3, -0.9, -0.5) for y in (-1.05, -0.9, -0.75)])
-    for st in desc.stages.values():  # never on the floor under the board, nor under the table
-        if st.height < 0.01:
-            assert not st.contains(under_board).any() and not st.contains(np.array([[0.3, 0.2]]))[0], st
+    for stage in desc.stages.values():  # never on the floor under the board, nor under the table
+        if stage.height < 0.01:
+            assert not stage.contains(under_board).any() and not stage.contains(np.array([[0.3, 0.2]]))[0], stage
     rc = main(["scenes", "show", str(byo / "scene.yaml"), "--out", str(tmp_path / "top.png"), "--clearance", "0.7"])
     assert rc == 0 and "auto_0720mm_1" in capsys.readouterr().out
     from PIL import Image
@@ -484,3 +486,21 @@ def test_obj_whose_named_mtl_was_renamed_reads_its_own_stem(tmp_path):
         (part,) = meshfiles.read_parts(tmp_path / "shelf.obj", tmp_path / "tex")
     assert part.material.base_color == pytest.approx((0.8, 0.1, 0.1))
     assert tmp_path / "shelf.mtl" in meshfiles.source_files(tmp_path / "shelf.obj")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 400), max_size=400), st.sampled_from([0.0, 0.002, 0.004, 0.01]), st.integers(1, 8),
+       st.sampled_from([0.0, 1e-17, 1e-3]))
+def test_height_levels_cut_groups_as_the_rule_says(steps, tol, min_count, jitter):
+    """One binary search per group gives exactly the rule's groups: sorted heights cut where a
+    sample is more than ``tol`` above its group's first (heights on a tol grid test the boundary)."""
+    from specsynth.scenes.autostage import height_levels
+
+    z = np.asarray(steps, np.float64) * 0.004 + jitter * (np.arange(len(steps)) % 3)
+    zs, want, start = np.sort(z), [], 0
+    for i in range(1, len(zs) + 1):  # the rule, one sample at a time
+        if i == len(zs) or zs[i] - zs[start] > tol:
+            if i - start >= min_count:
+                want.append(float(zs[start]))
+            start = i
+    assert height_levels(z, tol, min_count) == want

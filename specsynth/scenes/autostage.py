@@ -64,16 +64,22 @@ def sample_triangles(tris: np.ndarray, spacing: float) -> tuple[np.ndarray, np.n
 
 def height_levels(z: np.ndarray, tol: float, min_count: int) -> list[float]:
     """Heights where upward samples cluster: sorted samples are cut into groups no more than
-    ``tol`` tall (a chain of near heights never merges two surfaces), each group's lowest height."""
-    if len(z) == 0:
-        return []
+    ``tol`` tall (a chain of near heights never merges two surfaces), each group's lowest height.
+    A group ends at the first sample more than ``tol`` above its first: one binary search per
+    group (a room has ~1 M samples in a few hundred groups)."""
     zs = np.sort(z)
-    levels, start = [], 0
-    for i in range(1, len(zs) + 1):
-        if i == len(zs) or zs[i] - zs[start] > tol:
-            if i - start >= min_count:
-                levels.append(float(zs[start]))
-            start = i
+    levels, start, n = [], 0, len(zs)
+    while start < n:
+        end = int(np.searchsorted(zs, zs[start] + tol, side="right"))
+        # The search compares against zs[start] + tol; the rule is zs[i] - zs[start] > tol: settle
+        # the rounding at the boundary the rule's way.
+        while end < n and zs[end] - zs[start] <= tol:
+            end += 1
+        while end > start + 1 and zs[end - 1] - zs[start] > tol:
+            end -= 1
+        if end - start >= min_count:
+            levels.append(float(zs[start]))
+        start = end
     return levels
 
 
@@ -130,8 +136,8 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
     # all samples per level), and every level works only inside its own support's bounding box.
     order = np.argsort(pts[:, 2], kind="stable")
     z_all, r_all, c_all = pts[order, 2], rows[order], cols[order]
-    order_up = np.argsort(pts[up, 2], kind="stable")
-    z_up, r_up, c_up = pts[up, 2][order_up], rows[up][order_up], cols[up][order_up]
+    on_up = up[order]  # the upward samples in that order: the stable sort of their heights
+    z_up, r_up, c_up = z_all[on_up], r_all[on_up], c_all[on_up]
     stages = []
     for level in height_levels(z_up, params.height_tol, int(min_cells)):
         a = np.searchsorted(z_up, level, side="left")
