@@ -523,12 +523,12 @@ def object_fingerprints(objects: spec_mod.Objects, spec_dir: Path) -> dict[str, 
 # --------------------------------------------------------------------------- conversion
 
 
-def _convert(src: _Source) -> tuple[MeshData, str | None, tuple[float, float, float] | None]:
+def _convert(src: _Source, cache: Path) -> tuple[MeshData, str | None, tuple[float, float, float] | None]:
     """Source -> (mesh in metres, texture path or None, linear base colour or None)."""
     if src.kind == "builtin":
         return _convert_builtin(src)
     if src.kind == "catalogue":
-        return _convert_catalogue(src), None, None
+        return _convert_catalogue(src, cache), None, None
     mesh, tex_name = read_any_mesh(src.path)
     mesh = finish_mesh(mesh, src.label)
     texture = None
@@ -595,7 +595,7 @@ def _convert_builtin(src: _Source):
     return finish_mesh(mesh, src.label), texture, colour
 
 
-def _convert_catalogue(src: _Source) -> MeshData:
+def _convert_catalogue(src: _Source, cache: Path) -> MeshData:
     """A small library model as one object: sized to the catalogue, +Z up, its origin at the centre
     of its bounding box (as BOP's models); each part's colour (its base colour times its texture's
     mean, when it has one) baked into vertex colours, so every backend and BOP's model carry it."""
@@ -604,7 +604,6 @@ def _convert_catalogue(src: _Source) -> MeshData:
     from .meshfiles import primitives, read_parts
 
     item = _catalogue_item(src.name)
-    cache = cache_dir()
     parts = furnish.normalise_parts(read_parts(furniture.extract(item, cache), cache / "assets" / "textures"), item)
     meshes = []
     for part in parts:
@@ -677,7 +676,7 @@ def _load_or_convert(src: _Source, cache: Path) -> dict:
             pass  # a torn or stale sidecar is simply rebuilt
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        mesh, texture, colour = _convert(src)
+        mesh, texture, colour = _convert(src, cache)
     for w in caught:  # re-emit so callers see them, and remember for cache hits
         warnings.warn(w.message, stacklevel=3)
     diam, lo, ext = mesh_stats(mesh.vertices)
