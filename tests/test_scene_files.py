@@ -307,6 +307,61 @@ def test_largest_rectangle_matches_brute_force(seed):
         assert m[a : c + 1, b : d + 1].all() and (c - a + 1) * (d - b + 1) == area
 
 
+def _panel(yaw: float, x: float, z0: float, z1: float, width: float = 1.2) -> np.ndarray:
+    """An open vertical quad (two triangles, no top or bottom face) across the floor at x."""
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    ends = [np.array([x, 0.0]) + t * np.array([c, s_]) for t in (-width / 2, width / 2)]
+    q = [np.array([*ends[0], z0]), np.array([*ends[1], z0]), np.array([*ends[1], z1]), np.array([*ends[0], z1])]
+    return np.array([[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+
+
+@settings(max_examples=25, deadline=None)
+@given(yaw=st.floats(0.0, np.pi), reach=st.floats(0.005, 0.3))
+def test_a_vertical_panel_blocks_the_floor_under_it_even_where_it_barely_reaches_the_slab(yaw, reach):
+    """Vertical triangles are spans, not points: a bare panel whose lower edge hangs ``reach``
+    into the clearance above the floor blocks every floor cell it crosses, whatever its yaw."""
+    from specsynth.scenes.autostage import AutoStageParams, find_stages
+
+    params = AutoStageParams(clearance=0.6)
+    floor = _box_tris((-2, -2, -0.05), (2, 2, 0.0))
+    blocking = _panel(yaw, 0.0, params.clearance - reach, 2.0)
+    under = np.array([[t * np.cos(yaw), t * np.sin(yaw)] for t in np.linspace(-0.55, 0.55, 23)])
+    for stage in find_stages(np.concatenate([floor, blocking]), params):
+        assert not stage.contains(under).any(), stage
+    above = _panel(yaw, 0.0, params.clearance + params.height_tol + 0.02, 2.0)  # clear of the slab: no effect
+    assert find_stages(np.concatenate([floor, above]), params) == find_stages(floor, params)
+
+
+@settings(max_examples=50, deadline=None)
+@given(yaw=st.floats(0.0, 2 * np.pi), pts=st.lists(st.tuples(st.floats(-1, 1), st.floats(0, 2)), min_size=3, max_size=3))
+def test_vertical_spans_lie_on_their_triangle_and_cover_its_height(yaw, pts):
+    from specsynth.scenes.autostage import vertical_spans
+
+    (t0, z0), (t1, z1), (t2, z2) = pts
+    area2 = abs((t1 - t0) * (z2 - z0) - (t2 - t0) * (z1 - z0))
+    if area2 < 1e-3:
+        return
+    d = np.array([np.cos(yaw), np.sin(yaw)])
+    tri = np.array([[*(t * d), z] for t, z in pts])
+    xy, lo, hi = vertical_spans(tri[None], 0.01)
+    ts = xy @ d
+    assert np.all(np.diff(np.sort(ts)) <= 0.01 + 1e-9) and np.all(lo <= hi + 1e-12)
+    assert ts.min() - min(t0, t1, t2) <= 0.005 + 1e-9 and max(t0, t1, t2) - ts.max() <= 0.005 + 1e-9
+    # Each span is the triangle's cross-section at its t: the lowest and highest points of a fine
+    # column of heights that fall inside the triangle (a barycentric test, independent of the code).
+    P = np.array(pts)
+    zs = np.linspace(-0.01, 2.01, 20201)
+    for k in range(0, len(ts), max(1, len(ts) // 12)):
+        q = np.stack([np.full_like(zs, ts[k]), zs], axis=1) - P[0]
+        m = np.array([P[1] - P[0], P[2] - P[0]]).T
+        u, v = np.linalg.solve(m, q.T)
+        inside = (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9)
+        if inside.any():
+            assert abs(lo[k] - zs[inside].min()) <= 2e-4 and abs(hi[k] - zs[inside].max()) <= 2e-4
+        else:  # a sliver thinner than the column's step
+            assert hi[k] - lo[k] <= 2e-4
+
+
 def test_scene_without_stages_finds_them_and_show_draws_them(byo, tmp_path, capsys):
     from specsynth.cli import main
 

@@ -481,7 +481,8 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
     procedural scene's: its generator and the asset libraries it draws from."""
     if generated_name(ref):
         h = hashlib.sha256(f"procedural {generated_name(ref)} v{random_room.GENERATOR_VERSION} "
-                           f"{assets.CONVERSION_VERSION}.{SCENE_VERSION}.{filemeshes.PARTS_VERSION}\n".encode())
+                           f"{assets.CONVERSION_VERSION}.{SCENE_VERSION}.{filemeshes.PARTS_VERSION} "
+                           f"stages v{autostage.VERSION}\n".encode())
         for archive in sorted(furniture.library_dir().glob("*.sh3f")):
             h.update(assets.file_digest(archive).encode())
         manifest = textures.folder(assets.cache_dir()) / "manifest.json"
@@ -506,6 +507,8 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
     if env is not None:
         files.append(env)
     h = hashlib.sha256(f"scene v{assets.CONVERSION_VERSION}.{SCENE_VERSION}\n".encode())
+    if sf.auto_stages:
+        h.update(f"stages v{autostage.VERSION}\n".encode())
     for f in files:
         h.update(assets.file_digest(f).encode())
     # The stage subset is part of what a SceneRef means, so it is part of its key.

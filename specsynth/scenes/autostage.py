@@ -1,7 +1,10 @@
 """Stages found in a scene's geometry: free, upward-facing surfaces that objects can be dropped on.
 
 Pure numpy, deterministic. The collider triangles are sampled into a point cloud (a fixed
-low-discrepancy pattern per triangle, no RNG) and binned on an XY grid. For each height level of
+low-discrepancy pattern per triangle, no RNG) and binned on an XY grid. Vertical triangles (walls,
+the sides of furniture: half of a room's area) become vertical spans instead, one per half cell
+along their width: they only ever block the slab above a level, and a span blocks it exactly
+where a column of points would, for a hundredth of the points. For each height level of
 upward-facing samples (normal within ``max_tilt`` of +Z), a grid cell is a stage cell when:
 
 - it holds upward samples at that level (there is a surface to land on), and
@@ -22,6 +25,9 @@ import numpy as np
 
 from .types import Stage
 
+# Part of the fingerprint of every scene whose stages are found: bump when the same geometry can
+# give other stages. 2: vertical triangles as spans.
+VERSION = 2
 MAX_SAMPLES = 8_000_000  # the sampling spacing grows past this, so huge scenes stay bounded
 MAX_GRID_CELLS = 400 * 400  # likewise for the XY grid
 
@@ -62,6 +68,50 @@ def sample_triangles(tris: np.ndarray, spacing: float) -> tuple[np.ndarray, np.n
     return pts, normals
 
 
+def split_vertical(tris: np.ndarray, max_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(vertical, rest): steep triangles (normal over 60 degrees from +Z: never a surface to land
+    on) whose XY footprint is a strip at most ``max_width`` wide."""
+    tris = np.asarray(tris, np.float64)
+    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n_xy = np.linalg.norm(cross[:, :2], axis=1)
+    u = np.stack([-cross[:, 1], cross[:, 0]], axis=1) / np.maximum(n_xy, 1e-300)[:, None]
+    t = np.einsum("tvk,tk->tv", tris[:, :, :2], u)
+    length = t.max(1) - t.min(1)
+    # The footprint's area is |cross_z| / 2 and its length along u is `length`: width = 2 area / length.
+    steep = np.abs(cross[:, 2]) < 0.5 * np.linalg.norm(cross, axis=1)
+    vertical = steep & (n_xy > 1e-12) & (np.abs(cross[:, 2]) <= max_width * length)
+    return tris[vertical], tris[~vertical]
+
+
+def vertical_spans(tris: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xy (M, 2), z_lo (M,), z_hi (M,)): the height range each vertical triangle covers at points
+    along its width: the middles of pieces at most ``spacing`` long, as a point sample would fall."""
+    tris = np.asarray(tris, np.float64)
+    if len(tris) == 0:
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    u = np.stack([-cross[:, 1], cross[:, 0]], axis=1)
+    t = np.einsum("tvk,tk->tv", tris[:, :, :2], u / np.linalg.norm(u, axis=1)[:, None])
+    order = np.argsort(t, axis=1)  # vertices a, b, c along the width
+    t = np.take_along_axis(t, order, 1)
+    v = np.take_along_axis(tris, order[:, :, None], 1)
+    n = np.maximum(np.ceil((t[:, 2] - t[:, 0]) / spacing).astype(np.int64), 1)
+    owner = np.repeat(np.arange(len(tris)), n)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(n) - n, n)
+    t, v = t[owner], v[owner]
+    ts = t[:, 0] + (t[:, 2] - t[:, 0]) * (k + 0.5) / n[owner]
+    # A vertical line at ts crosses the long edge a-c, and a-b before b, b-c after it.
+    f = (ts - t[:, 0]) / np.maximum(t[:, 2] - t[:, 0], 1e-300)
+    on_ac = v[:, 0] + f[:, None] * (v[:, 2] - v[:, 0])
+    first = ts <= t[:, 1]
+    i = np.where(first, 0, 1)
+    rows = np.arange(len(ts))
+    ti, tj, zi, zj = t[rows, i], t[rows, i + 1], v[rows, i, 2], v[rows, i + 1, 2]
+    g = np.clip((ts - ti) / np.maximum(tj - ti, 1e-300), 0.0, 1.0)
+    z_other = zi + g * (zj - zi)
+    return on_ac[:, :2], np.minimum(on_ac[:, 2], z_other), np.maximum(on_ac[:, 2], z_other)
+
+
 def height_levels(z: np.ndarray, tol: float, min_count: int) -> list[float]:
     """Heights where upward samples cluster: sorted samples are cut into groups no more than
     ``tol`` tall (a chain of near heights never merges two surfaces), each group's lowest height.
@@ -96,26 +146,44 @@ def _erode(mask: np.ndarray, r: int) -> np.ndarray:
     return box == w * w
 
 
+def _previous_smaller(h: np.ndarray) -> np.ndarray:
+    """Per row of ``h`` (R, C): for each column, the nearest column to its left with a strictly
+    smaller value (-1 if none). Binary lifting over window minima: log2(C) whole-array steps."""
+    ncols = h.shape[1]
+    tables = [h]  # tables[k][:, p] = min(h[:, p - 2^k + 1 : p + 1]), -1 beyond the left edge
+    while (1 << len(tables)) <= ncols:
+        prev, step = tables[-1], 1 << (len(tables) - 1)
+        shifted = np.full_like(prev, -1)
+        shifted[:, step:] = prev[:, :-step]
+        tables.append(np.minimum(prev, shifted))
+    pos = np.broadcast_to(np.arange(ncols, dtype=np.int64), h.shape)  # all of [pos, c) is >= h[c]
+    row_start = (np.arange(h.shape[0]) * ncols)[:, None]
+    for k in range(len(tables) - 1, -1, -1):
+        seen = tables[k].ravel().take(row_start + np.maximum(pos - 1, 0))
+        pos = np.where((pos >= (1 << k)) & (seen >= h), pos - (1 << k), pos)
+    return pos - 1
+
+
 def largest_rectangle(mask: np.ndarray) -> tuple[int, int, int, int, int]:
     """(area, row0, col0, row1, col1) of the largest all-True rectangle (inclusive bounds).
-    Row by row, the column heights of True cells form a histogram; a stack finds its largest
-    rectangle in one pass."""
-    best = (0, 0, 0, -1, -1)
-    ncols = mask.shape[1]
-    heights = np.zeros(ncols, np.int64)
-    for r in range(mask.shape[0]):
-        heights = np.where(mask[r], heights + 1, 0)
-        hs = heights.tolist() + [0]
-        stack: list[int] = []
-        for c, h in enumerate(hs):
-            while stack and hs[stack[-1]] >= h:
-                top = stack.pop()
-                left = stack[-1] + 1 if stack else 0
-                area = hs[top] * (c - left)
-                if area > best[0]:
-                    best = (area, r - hs[top] + 1, left, r, c - 1)
-            stack.append(c)
-    return best
+    Row by row, the column heights of True cells form a histogram; every cell's maximal rectangle
+    (its height, as wide as no lower column interrupts) is a candidate. Ties go to the lowest
+    bottom row, then the leftmost right edge, then the tallest."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return (0, 0, 0, -1, -1)
+    rows, ncols = mask.shape
+    index = np.arange(rows)[:, None]
+    last_false = np.maximum.accumulate(np.where(mask, -1, index), axis=0)
+    h = np.where(mask, index - last_false, 0).astype(np.int32)
+    left = _previous_smaller(h) + 1
+    right = ncols - 2 - _previous_smaller(h[:, ::-1])[:, ::-1]
+    area = h * (right - left + 1)
+    best = area.max()
+    r, c = np.nonzero(area == best)  # row-major: lowest bottom row first
+    key = np.lexsort((-h[r, c], right[r, c], r))[0]
+    r, c = int(r[key]), int(c[key])
+    return (int(best), r - int(h[r, c]) + 1, int(left[r, c]), r, int(right[r, c]))
 
 
 def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams()) -> list[Stage]:
@@ -126,10 +194,17 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
     lo = triangles.reshape(-1, 3).min(0)
     hi = triangles.reshape(-1, 3).max(0)
     cell = max(params.cell, math.sqrt((hi[0] - lo[0]) * (hi[1] - lo[1]) / MAX_GRID_CELLS))
-    pts, normals = sample_triangles(triangles, cell / 2)
+    vertical, rest = split_vertical(triangles, cell / 4)
+    pts, normals = sample_triangles(rest, cell / 2)
+    span_xy, span_lo, span_hi = vertical_spans(vertical, cell / 2)
     shape = (int((hi[1] - lo[1]) / cell) + 1, int((hi[0] - lo[0]) / cell) + 1)
-    rows = np.clip(((pts[:, 1] - lo[1]) / cell).astype(np.int64), 0, shape[0] - 1)
-    cols = np.clip(((pts[:, 0] - lo[0]) / cell).astype(np.int64), 0, shape[1] - 1)
+
+    def cells(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (np.clip(((xy[:, 1] - lo[1]) / cell).astype(np.int64), 0, shape[0] - 1),
+                np.clip(((xy[:, 0] - lo[0]) / cell).astype(np.int64), 0, shape[1] - 1))
+
+    rows, cols = cells(pts)
+    span_r, span_c = cells(span_xy)
     up = normals[:, 2] >= math.cos(math.radians(params.max_tilt_deg))
     min_cells = (params.min_side / cell) ** 2
     # Every slab test below is a slice of the samples sorted by height (one sort, not a pass over
@@ -156,6 +231,9 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
         inside = (r_ab >= r0) & (r_ab < r1) & (c_ab >= c0) & (c_ab < c1)
         blocked = np.zeros(box, bool)
         blocked[r_ab[inside] - r0, c_ab[inside] - c0] = True
+        crossing = ((span_hi > level + params.height_tol) & (span_lo <= level + params.clearance)
+                    & (span_r >= r0) & (span_r < r1) & (span_c >= c0) & (span_c < c1))
+        blocked[span_r[crossing] - r0, span_c[crossing] - c0] = True
         free = _erode(support & ~blocked, int(math.ceil(params.margin / cell)))
         origin = lo + np.array([c0 * cell, r0 * cell, 0.0])
         stages += _rectangles(free, top, origin, cell, params)
