@@ -274,6 +274,24 @@ def test_persistent_scene_honours_every_change(backend, meshes):
     assert kept[0].tobytes() != kept[1].tobytes() and kept[1].tobytes() != kept[2].tobytes()
 
 
+def test_persistent_scene_follows_a_new_load(backend, meshes):
+    """A scene kept from the last arrangement's renders is dropped at the next load: the same
+    settings render the new scene exactly as a fully synced render does."""
+    opts = backend.options
+    try:
+        backend.load(_lit_scene(meshes))
+        first = [backend.render(camera(), LOW, 1).linear for _ in range(2)]  # the second reuses the sync
+        backend.load(_lit_scene(meshes, glossy=True))
+        kept = backend.render(camera(), LOW, 1).linear
+        backend.options = opts.model_copy(update={"persistent": False})
+        backend.load(_lit_scene(meshes, glossy=True))
+        synced = backend.render(camera(), LOW, 1).linear
+    finally:
+        backend.options = opts
+    assert first[0].tobytes() == first[1].tobytes()
+    assert kept.tobytes() == synced.tobytes() and kept.tobytes() != first[0].tobytes()
+
+
 @pytest.mark.slow
 def test_glossy_bounces_skipped_only_without_glossy_material(backend, meshes):
     backend.load(_lit_scene(meshes, glossy=False))

@@ -328,8 +328,9 @@ def test_mesh_normals_use_the_exact_inverse(entries):
 
 
 def test_parts_sharing_a_texture_render_as_with_their_own(backend, tmp_path, monkeypatch):
-    """A scene whose parts share one texture decodes it once; each part still gets its own
-    base-colour factor (the render equals the one with the texture copied per part)."""
+    """A scene whose parts share one texture decodes it once, and the next scene reuses what it
+    shares with the last; each part still gets its own base-colour factor (the render equals the
+    one with the texture copied per part)."""
     import shutil
 
     from PIL import Image
@@ -358,4 +359,22 @@ def test_parts_sharing_a_texture_render_as_with_their_own(backend, tmp_path, mon
     assert decodes == [str(tex)]
     backend.load(scene(str(copy)))
     own = backend.render(cam, _spp(4), seed=3).linear
-    assert decodes[1:] == [str(tex), str(copy)] and np.array_equal(shared, own)
+    assert decodes[1:] == [str(copy)] and np.array_equal(shared, own)
+
+
+def test_eight_bit_textures_decode_exactly_as_the_srgb_curve():
+    from specsynth.model.colour import srgb_to_linear
+    from specsynth_mitsuba.scene import _SRGB8_TO_LINEAR
+
+    codes = np.arange(256, dtype=np.float32)
+    assert _SRGB8_TO_LINEAR.dtype == np.float32
+    assert np.array_equal(_SRGB8_TO_LINEAR, srgb_to_linear(codes / 255.0))
+
+
+def test_a_load_keeps_only_its_own_meshes(backend, tmp_path):
+    """With a new room per arrangement the mesh cache must not grow with every load."""
+    light = LightIR(kind="area", pose=_pose((0, 0, 2)), power=80.0)
+    for k in range(3):
+        quad = MeshInstance("q", _quad(tmp_path, uv=True), f"quad{k}", _pose((0, 0, 0)), MaterialIR())
+        backend.load(RenderScene(meshes=(quad,), lights=(light,)))
+        assert set(backend._mesh_cache) == {f"quad{k}"}

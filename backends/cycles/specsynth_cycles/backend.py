@@ -151,10 +151,10 @@ class CyclesBackend:
         cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         r = sc.render
         # Persistent data keeps the synced scene (BVH, images) between renders; it silently ignores a
-        # changed sample count (measurements.md), so _apply turns it on only for a render whose
-        # settings equal the previous one's and off (a full sync) whenever one changes.
+        # changed sample count (measurements.md), so _apply drops what is kept (switching it off frees
+        # it) whenever a setting or the scene changes, and keeps the fresh full sync for the next render.
         r.use_persistent_data = False
-        self._last_settings: tuple | None = None
+        self._last_settings: tuple | None = None  # what the kept sync was made with; None: nothing kept
         r.threads_mode = "FIXED"
         r.threads = self.threads
         r.resolution_percentage = 100
@@ -212,6 +212,7 @@ class CyclesBackend:
         bpy = self._bpy
         self._clear()
         self._scene_ir = None
+        self._last_settings = None  # a new scene: the next render syncs in full
         sc = bpy.context.scene
         coll = sc.collection
         build_meshes(bpy, coll, scene.meshes)
@@ -301,7 +302,9 @@ class CyclesBackend:
         r = self._bpy.context.scene.render
         r.threads = self.threads
         key = (ps, self.threads, r.resolution_x, r.resolution_y)
-        r.use_persistent_data = self.options.persistent and key == self._last_settings
+        if key != self._last_settings:
+            r.use_persistent_data = False
+        r.use_persistent_data = self.options.persistent
         self._last_settings = key
 
     def _render_exr(self, stem: str) -> np.ndarray:

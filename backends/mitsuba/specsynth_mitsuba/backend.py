@@ -65,6 +65,7 @@ class MitsubaBackend:
             dr.set_thread_count(int(threads))
         self._mi, self._dr = mi, dr
         self._mesh_cache: dict[str, MeshData] = {}
+        self._textures = scene_mod.DecodedTextures()
         self._scene = None
         # Sensors and integrators are rebuilt only when their settings change; the camera pose is
         # a traversable parameter, so moving it does not rebuild (or, in JIT variants, recompile).
@@ -88,10 +89,15 @@ class MitsubaBackend:
         # hence a different kernel and a recompilation (measured: ~0.5-2 s per arrangement).
         self._scene = None
         gc.collect()
+        # Only this scene's meshes are kept: with a new room per arrangement the cache would
+        # otherwise grow with every one.
+        held, self._mesh_cache = self._mesh_cache, {}
         for inst in scene.meshes:
             if inst.mesh_key not in self._mesh_cache:
-                self._mesh_cache[inst.mesh_key] = read_mesh(inst.mesh_path).validate(inst.mesh_path)
-        d = scene_mod.scene_dict(mi, scene, self._mesh_cache, calibrate=self.options.match_cycles_bsdf)
+                data = held.get(inst.mesh_key)
+                self._mesh_cache[inst.mesh_key] = data if data is not None else read_mesh(inst.mesh_path).validate(inst.mesh_path)
+        d = scene_mod.scene_dict(mi, scene, self._mesh_cache, calibrate=self.options.match_cycles_bsdf,
+                                 decoded=self._textures)
         if d.get("world", {}).get("type") == "sunsky" and not self._has_plugin("sunsky"):
             d["world"] = _sky_fallback(scene.world)
         self._scene = mi.load_dict(d)

@@ -39,35 +39,58 @@ def _sampling(mi, material: MaterialIR, nearest: bool = False) -> dict:
     return out
 
 
+# Every 8-bit code's linear value, exactly as srgb_to_linear(code / 255) computes it: a table
+# lookup instead of a power per texel (a third of a room's load was this decoding).
+_SRGB8_TO_LINEAR = srgb_to_linear(np.arange(256, dtype=np.float32) / np.float32(255.0))
+
+
 def _linear_rgb(mi, path: str) -> np.ndarray:
     """A colour texture's pixels as linear float RGB (8/16-bit images are sRGB-encoded by convention)."""
     bmp = _read_bitmap(mi, str(path))
-    arr = np.asarray(bmp, dtype=np.float32)
+    fmt = bmp.component_format()
+    arr = np.asarray(bmp, dtype=np.uint8 if fmt == mi.Struct.Type.UInt8 else np.float32)
     if arr.ndim == 2:
         arr = arr[..., None]
     arr = arr[..., :3] if arr.shape[-1] >= 3 else np.repeat(arr[..., :1], 3, axis=-1)
-    if bmp.component_format() in (mi.Struct.Type.UInt8, mi.Struct.Type.UInt16):
-        arr = arr / (255.0 if bmp.component_format() == mi.Struct.Type.UInt8 else 65535.0)
-        arr = srgb_to_linear(arr)
+    if fmt == mi.Struct.Type.UInt8:
+        return _SRGB8_TO_LINEAR[arr]
+    if fmt == mi.Struct.Type.UInt16:
+        return srgb_to_linear(arr / 65535.0)
     return arr
 
 
-def _texture_scaled(mi, path: str, scale, material: MaterialIR, decoded: dict | None = None) -> dict:
+class DecodedTextures:
+    """Colour textures' linear pixels by path, for one scene and the next: the parts of a scene
+    that share a texture (a room's walls) decode it once, and the next arrangement's scene reuses
+    what it shares with the last (a library's floors and walls recur from room to room). Nothing
+    older is kept, so memory holds at most two scenes' textures. Texture files are named by
+    content, so a path always holds the same pixels."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, np.ndarray] = {}
+        self._now: dict[str, np.ndarray] = {}
+
+    def next_scene(self) -> None:
+        self._last, self._now = self._now, {}
+
+    def linear(self, mi, path: str) -> np.ndarray:
+        if path not in self._now:
+            self._now[path] = self._last[path] if path in self._last else _linear_rgb(mi, path)
+        return self._now[path]
+
+
+def _texture_scaled(mi, path: str, scale, material: MaterialIR, decoded: DecodedTextures | None = None) -> dict:
     """An sRGB colour texture times a constant colour, in linear floats.
 
     Mitsuba has no 'multiply' texture for constants, so the factor is baked into the pixels once
     per arrangement (cheap next to the render), which keeps the shading exactly factor * texture.
-    ``decoded`` (path -> linear pixels) lets the parts of one scene that share a texture (a room's
-    walls, furniture re-dressed in one wood) decode it once.
     """
-    decoded = {} if decoded is None else decoded
-    if path not in decoded:
-        decoded[path] = _linear_rgb(mi, path)
-    arr = np.ascontiguousarray(decoded[path] * np.asarray(scale, dtype=np.float32))
+    decoded = DecodedTextures() if decoded is None else decoded
+    arr = np.ascontiguousarray(decoded.linear(mi, path) * np.asarray(scale, dtype=np.float32))
     return {"type": "bitmap", "bitmap": mi.Bitmap(arr), "raw": True, **_sampling(mi, material)}
 
 
-def _texture_base(mi, material: MaterialIR, decoded: dict | None = None) -> dict:
+def _texture_base(mi, material: MaterialIR, decoded: DecodedTextures | None = None) -> dict:
     """Base-colour texture premultiplied by base_color."""
     return _texture_scaled(mi, material.texture, material.base_color, material, decoded)
 
@@ -112,7 +135,7 @@ def mitsuba_material(material: MaterialIR, calibrate: bool = True) -> MaterialIR
     return dataclasses.replace(material, base_color=tuple(float(c) * k for c in material.base_color), specular=spec)
 
 
-def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool, decoded: dict | None = None) -> dict:
+def bsdf_dict(mi, material: MaterialIR, vertex_colored: bool, decoded: DecodedTextures | None = None) -> dict:
     """Base colour = base_color x vertex colour x texture, as in the Cycles backend; base_color is
     baked into whichever of the other two is present. ``material`` is what ``mitsuba_material``
     returns (build_mesh premultiplies vertex colours by its base_color too)."""
@@ -164,7 +187,8 @@ def _inverse3(R: np.ndarray) -> np.ndarray:
     return C.T / float(np.dot(R[0], C[0]))
 
 
-def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True, decoded: dict | None = None):
+def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True,
+               decoded: DecodedTextures | None = None):
     T = inst.matrix
     R, t = T[:3, :3], T[:3, 3]
     v = data.vertices.astype(np.float64) @ R.T + t
@@ -273,10 +297,12 @@ def world_dict(world: WorldIR) -> dict | None:
     raise ValueError(f"unknown world kind {world.kind!r}")
 
 
-def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData], calibrate: bool = True) -> dict:
-    """``meshes`` maps mesh_key -> arrays (the backend's cache)."""
+def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData], calibrate: bool = True,
+               decoded: DecodedTextures | None = None) -> dict:
+    """``meshes`` maps mesh_key -> arrays and ``decoded`` holds textures (the backend's caches)."""
     d: dict = {"type": "scene"}
-    decoded: dict = {}  # texture path -> linear pixels, for this scene only
+    decoded = DecodedTextures() if decoded is None else decoded
+    decoded.next_scene()
     for i, inst in enumerate(scene.meshes):
         d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key], calibrate, decoded)
     for i, light in enumerate(scene.lights):
