@@ -11,11 +11,13 @@ import numpy as np
 import pybullet as p
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specsynth.assets import meshio
 from specsynth.assets.resolve import ObjectAsset
 from specsynth.model.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
-from specsynth.physics import ArrangeError, arrange
+from specsynth.physics import ArrangeError, _World, arrange, collider_region, faces_in_region
 from specsynth.scenes.types import SceneDesc, Stage
 from specsynth.spec.models import Arrangements, Physics
 
@@ -274,3 +276,61 @@ def test_decomposition_is_cached_once_per_mesh(tmp_path, monkeypatch):
     check_valid(res2, [ring], stage)
     # Canonical flat ring lands flat.
     assert res2.placed[0][1][2, 2] > np.cos(np.radians(2.0))
+
+
+# --------------------------------------------------------------------------- colliders near the stage
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 60))
+def test_faces_in_region_keeps_exactly_the_faces_whose_box_meets_the_region(seed, n):
+    rng = np.random.default_rng(seed)
+    v = rng.uniform(-3.0, 3.0, size=(3 * n, 3))
+    f = rng.permutation(3 * n).reshape(n, 3)
+    lo = rng.uniform(-2.0, 1.0, size=3)
+    region = np.array([lo, lo + rng.uniform(0.0, 2.0, size=3)])
+    kept = {tuple(t) for t in faces_in_region(v, f, region).tolist()}
+    for t in f.tolist():
+        box_lo, box_hi = v[t].min(axis=0), v[t].max(axis=0)
+        meets = bool(np.all(box_hi >= region[0]) and np.all(box_lo <= region[1]))
+        assert (tuple(t) in kept) == meets
+        if any(np.all((region[0] <= v[i]) & (v[i] <= region[1])) for i in t):
+            assert tuple(t) in kept  # a face with a corner inside is always kept
+
+
+def test_colliders_are_cut_to_the_stage_neighbourhood(tmp_path, monkeypatch):
+    """Bullet gets the table and what is near or above it, not a cupboard across the room nor
+    the floor under the table (nothing alive reaches below the stage), and the objects still
+    rest on the table."""
+    scene, stage = make_table_scene(tmp_path)
+    far = trimesh.creation.box(extents=(0.5, 0.5, 2.0))
+    path, key = _write(far, tmp_path / "cupboard.ply")
+    pose = np.eye(4)
+    pose[:3, 3] = (4.0, 0.0, 1.0)
+    above = trimesh.creation.box(extents=(1.0, 0.8, 0.02))
+    path_a, key_a = _write(above, tmp_path / "shelf_above.ply")
+    pose_a = np.eye(4)
+    pose_a[2, 3] = 2.0
+    scene = SceneDesc(name=scene.name, lights=(), world=WorldIR(), stages=scene.stages, meshes=scene.meshes + (
+        MeshInstance(name="cupboard", mesh_path=path, mesh_key=key, pose=as_tuple(pose)),
+        MeshInstance(name="shelf_above", mesh_path=path_a, mesh_key=key_a, pose=as_tuple(pose_a))))
+    given_to_bullet = []
+    real = _World.add_collider
+    monkeypatch.setattr(_World, "add_collider", lambda self, v, f: given_to_bullet.append(v[f]) or real(self, v, f))
+    objects = small_objects(tmp_path)
+    res = arrange(scene, stage, objects, fast_arrangements(), "canonical", np.random.default_rng(3))
+    check_valid(res, objects, stage)
+    tris = np.concatenate(given_to_bullet)
+    assert np.isclose(tris[..., 2], 2.01).any()  # the shelf above the table is there
+    assert tris[..., 0].max() < 3.0  # the cupboard is not
+    assert tris[..., 2].min() > TABLE_TOP - 0.2  # nor the floor
+    region = collider_region(stage, max(np.linalg.norm(o.extents) / 2 for o in objects))
+    assert region[0, 2] < TABLE_TOP and region[1, 2] == np.inf
+
+
+def test_a_stage_on_a_top_far_larger_than_the_reach_keeps_its_triangles(tmp_path):
+    """A 30 m slab is a few huge triangles, none with a corner near the stage: still kept."""
+    scene, stage = make_table_scene(tmp_path, top=(30.0, 30.0), floor=False)
+    objects = small_objects(tmp_path)
+    res = arrange(scene, stage, objects, fast_arrangements(), "canonical", np.random.default_rng(5))
+    assert len(res.placed) == len(objects)
+    check_valid(res, objects, stage)

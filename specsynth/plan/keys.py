@@ -14,8 +14,9 @@ from typing import Any
 # Bump a stage's version when its code changes what it produces: its jobs and every
 # downstream job then re-run.
 # view 2 / render 2: the annotation engine draws back faces (a camera behind a wall no longer sees
-# through it) and cuts coverage-mapped holes.
-STAGE_VERSIONS = {"arrange": 1, "view": 2, "render": 2}
+# through it) and cuts coverage-mapped holes. arrange 2: scene colliders cut to the stage's
+# neighbourhood (physics.collider_region).
+STAGE_VERSIONS = {"arrange": 2, "view": 2, "render": 2}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 

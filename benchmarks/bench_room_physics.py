@@ -1,0 +1,73 @@
+"""Physics on furnished rooms: the arrange step of `specs/demo.yaml` (random_room, its objects and
+distractors) over N arrangements, timing `physics.arrange` alone (the room is assembled first,
+untimed) and counting the scene triangles given to Bullet.
+
+    .venv/bin/python benchmarks/bench_room_physics.py [--arrangements 20] [--all-colliders]
+
+`--all-colliders` gives Bullet every collider triangle of the room, as before the colliders were
+cut to the stage's neighbourhood (`physics.collider_region`), for comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from specsynth import physics
+from specsynth.plan import seeds
+from specsynth.plan.compiler import compile_spec
+from specsynth.run import arrange as arrange_step
+from specsynth.run.worker import BuildContext, Worker
+from specsynth.spec.yamlio import load_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--arrangements", type=int, default=20)
+    ap.add_argument("--all-colliders", action="store_true")
+    args = ap.parse_args()
+    graph = compile_spec(load_spec(ROOT / "specs/demo.yaml", [f"arrangements.count={args.arrangements}"]))
+    spec = graph.spec
+    seconds: list[float] = []
+    faces = [0, 0]  # given to Bullet, in the rooms' colliders
+    real_arrange, real_cut = physics.arrange, physics.faces_in_region
+
+    def timed_arrange(*a, **k):
+        t0 = time.perf_counter()
+        try:
+            return real_arrange(*a, **k)
+        finally:
+            seconds.append(time.perf_counter() - t0)
+
+    def counted_cut(v, f, region):
+        kept = f if args.all_colliders else real_cut(v, f, region)
+        faces[0] += len(kept)
+        faces[1] += len(f)
+        return kept
+
+    physics.arrange, physics.faces_in_region = timed_arrange, counted_cut
+    with tempfile.TemporaryDirectory() as out:
+        w = Worker(BuildContext(spec=spec, spec_dir=graph.spec_path.parent, out=Path(out)))
+        results = []
+        for arr in range(graph.n_arrangements):
+            job, _, _ = graph.arrangement_jobs(arr)
+            w.scene(spec.scenes[0], seeds.job_seed(spec.seed, f"{job.id}/scene"))  # assembled, untimed
+            results.append(arrange_step.run_arrange(w, job))
+        w.close()
+    print(f"{len(seconds)} arrangements of specs/demo.yaml, {'all' if args.all_colliders else 'near-stage'} colliders")
+    print(f"physics.arrange s: median {statistics.median(seconds):.3f}, p90 {np.percentile(seconds, 90):.3f}, "
+          f"max {max(seconds):.3f}, total {sum(seconds):.2f}")
+    print(f"collider triangles given to Bullet: {faces[0]:,} of {faces[1]:,} ({100 * faces[0] / max(faces[1], 1):.0f} %)")
+    print(f"objects kept {sum(r['objects'] for r in results)}, removed {sum(r['removed'] for r in results)}, "
+          f"re-dropped {sum(r['redropped'] for r in results)}")
+
+
+if __name__ == "__main__":
+    main()
