@@ -205,6 +205,9 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
 
     rows, cols = cells(pts)
     span_r, span_c = cells(span_xy)
+    # Spans sorted by row: a level's bounding box takes a slice of them, not a pass over all.
+    by_row = np.argsort(span_r, kind="stable")
+    span_r, span_c, span_lo, span_hi = span_r[by_row], span_c[by_row], span_lo[by_row], span_hi[by_row]
     up = normals[:, 2] >= math.cos(math.radians(params.max_tilt_deg))
     min_cells = (params.min_side / cell) ** 2
     # Every slab test below is a slice of the samples sorted by height (one sort, not a pass over
@@ -231,9 +234,11 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
         inside = (r_ab >= r0) & (r_ab < r1) & (c_ab >= c0) & (c_ab < c1)
         blocked = np.zeros(box, bool)
         blocked[r_ab[inside] - r0, c_ab[inside] - c0] = True
-        crossing = ((span_hi > level + params.height_tol) & (span_lo <= level + params.clearance)
-                    & (span_r >= r0) & (span_r < r1) & (span_c >= c0) & (span_c < c1))
-        blocked[span_r[crossing] - r0, span_c[crossing] - c0] = True
+        s0, s1 = np.searchsorted(span_r, [r0, r1], side="left")
+        sr, sc = span_r[s0:s1], span_c[s0:s1]
+        crossing = ((span_hi[s0:s1] > level + params.height_tol) & (span_lo[s0:s1] <= level + params.clearance)
+                    & (sc >= c0) & (sc < c1))
+        blocked[sr[crossing] - r0, sc[crossing] - c0] = True
         free = _erode(support & ~blocked, int(math.ceil(params.margin / cell)))
         origin = lo + np.array([c0 * cell, r0 * cell, 0.0])
         stages += _rectangles(free, top, origin, cell, params)
