@@ -216,6 +216,8 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
     z_all, r_all, c_all = pts[order, 2], rows[order], cols[order]
     on_up = up[order]  # the upward samples in that order: the stable sort of their heights
     z_up, r_up, c_up = z_all[on_up], r_all[on_up], c_all[on_up]
+    flat_all = r_all * shape[1] + c_all  # blocked cells are marked on the whole grid by flat index:
+    blocked_grid = np.zeros(shape, bool)  # cheaper than cutting each slab to the level's box first
     stages = []
     for level in height_levels(z_up, params.height_tol, int(min_cells)):
         a = np.searchsorted(z_up, level, side="left")
@@ -230,10 +232,9 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
         top = np.full(box, -np.inf)  # highest support sample per cell: where objects land
         np.maximum.at(top, (r_on - r0, c_on - c0), z_on)
         lo_a, hi_a = np.searchsorted(z_all, [level + params.height_tol, level + params.clearance], side="right")
-        r_ab, c_ab = r_all[lo_a:hi_a], c_all[lo_a:hi_a]
-        inside = (r_ab >= r0) & (r_ab < r1) & (c_ab >= c0) & (c_ab < c1)
-        blocked = np.zeros(box, bool)
-        blocked[r_ab[inside] - r0, c_ab[inside] - c0] = True
+        blocked_grid[:] = False
+        blocked_grid.ravel()[flat_all[lo_a:hi_a]] = True
+        blocked = blocked_grid[r0:r1, c0:c1].copy()
         s0, s1 = np.searchsorted(span_r, [r0, r1], side="left")
         sr, sc = span_r[s0:s1], span_c[s0:s1]
         crossing = ((span_hi[s0:s1] > level + params.height_tol) & (span_lo[s0:s1] <= level + params.clearance)
