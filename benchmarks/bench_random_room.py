@@ -45,6 +45,8 @@ def main() -> None:
     rest = sorted(seconds[1:])
     print(f"| rooms | first s | median s | p90 s | max s |\n|---|---|---|---|---|")
     print(f"| {args.rooms} | {seconds[0]:.2f} | {statistics.median(rest):.2f} | {rest[int(0.9 * len(rest))]:.2f} | {rest[-1]:.2f} |")
+    slowest = sorted(range(1, len(seconds)), key=seconds.__getitem__)[-3:][::-1]
+    print("slowest rooms (variant: s): " + ", ".join(f"{1000 + k}: {seconds[k]:.2f}" for k in slowest))
     print("\n| after room | RSS MB |\n|---|---|")
     for n, mb in rss.items():
         print(f"| {n} | {mb:.0f} |")

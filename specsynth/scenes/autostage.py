@@ -117,7 +117,8 @@ def height_levels(z: np.ndarray, tol: float, min_count: int) -> list[float]:
     ``tol`` tall (a chain of near heights never merges two surfaces), each group's lowest height.
     A group ends at the first sample more than ``tol`` above its first: one binary search per
     group (a room has ~1 M samples in a few hundred groups)."""
-    zs = np.sort(z)
+    z = np.asarray(z)
+    zs = z if bool(np.all(z[1:] >= z[:-1])) else np.sort(z)  # find_stages passes them sorted
     levels, start, n = [], 0, len(zs)
     while start < n:
         end = int(np.searchsorted(zs, zs[start] + tol, side="right"))
