@@ -588,3 +588,47 @@ def test_one_thread_worker_uses_one_core(meshes, thread):
     assert r.returncode == 0, r.stderr[-2000:]
     cores = float(r.stdout.strip().splitlines()[-1])
     assert cores < 1.25, f"a 1-thread Cycles worker kept {cores:.2f} cores busy"
+
+
+_DEVICES = """
+import json, sys
+sys.path[:0] = [sys.argv[2], sys.argv[3]]
+from test_cycles import LOW, _lit_scene, camera
+from specsynth_cycles.backend import CyclesBackend
+from specsynth_cycles.options import CyclesOptions
+
+out = {}
+b = CyclesBackend(CyclesOptions(name="cycles", threads=1, device="auto"))
+b.load(_lit_scene(json.loads(sys.argv[1])))
+r = b.render(camera(W=32, H=24), LOW, seed=1)
+out["auto"] = [r.stats["device"], b._bpy.context.scene.cycles.device, float(r.linear.mean())]
+b.close()
+prefs = b._bpy.context.preferences.addons["cycles"].preferences
+prefs.compute_device_type = "CUDA"
+prefs.get_devices()
+out["has_cuda"] = any(d.type == "CUDA" for d in prefs.devices)
+try:
+    CyclesBackend(CyclesOptions(name="cycles", threads=1, device="cuda"))
+    out["cuda"] = "ok"
+except RuntimeError as e:
+    out["cuda"] = str(e)
+print(json.dumps(out), flush=True)
+"""
+
+
+def test_device_auto_falls_back_to_the_cpu_and_a_missing_gpu_is_a_clear_error(meshes):
+    """Without a GPU (CI, this machine) 'auto' renders on the CPU and says so in the stats; asking
+    for CUDA names the option and the fix instead of silently rendering on the CPU."""
+    import json
+    import subprocess
+    import sys
+
+    here = Path(__file__).resolve()
+    r = subprocess.run([sys.executable, "-c", _DEVICES, json.dumps(meshes), str(here.parent), str(here.parents[1])],
+                       capture_output=True, text=True, timeout=300)
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    if out["has_cuda"]:
+        pytest.skip("this machine has a CUDA device")
+    device, blender_device, mean = out["auto"]
+    assert (device, blender_device) == ("cpu", "CPU") and mean > 0
+    assert "backend.device is 'cuda'" in out["cuda"] and "no CUDA device" in out["cuda"]

@@ -137,7 +137,7 @@ class CyclesBackend:
         sc = self._bpy.context.scene
         sc.render.engine = "CYCLES"
         cy = sc.cycles
-        cy.device = "CPU"
+        self.device = self._select_device()
         cy.use_animated_seed = False
         cy.sample_clamp_direct = 0.0
         # Glossy filter (default 1.0) trades bias for less noise; keep the estimate unbiased.
@@ -147,7 +147,7 @@ class CyclesBackend:
         cy.volume_bounces = 0
         cy.transparent_max_bounces = 8
         cy.denoiser = "OPENIMAGEDENOISE"
-        cy.denoising_use_gpu = False
+        cy.denoising_use_gpu = self.device != "cpu"
         cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         r = sc.render
         # Persistent data keeps the synced scene (BVH, images) between renders; it silently ignores a
@@ -176,6 +176,32 @@ class CyclesBackend:
         im.color_mode = "RGB"
         im.color_depth = "32"
         im.exr_codec = "NONE"  # the file lives for milliseconds: skip compression
+
+    def _select_device(self) -> str:
+        """The device the options ask for, set up in Blender's preferences -> its kind ('cpu', 'cuda', ...)."""
+        cy = self._bpy.context.scene.cycles
+        want = self.options.device
+        if want == "cpu":
+            cy.device = "CPU"
+            return "cpu"
+        prefs = self._bpy.context.preferences.addons["cycles"].preferences
+        for kind in (("OPTIX", "CUDA", "HIP", "ONEAPI") if want == "auto" else (want.upper(),)):
+            try:
+                prefs.compute_device_type = kind
+            except TypeError:  # not built into this Blender
+                continue
+            prefs.get_devices()
+            if any(d.type == kind for d in prefs.devices):
+                for d in prefs.devices:
+                    d.use = d.type == kind
+                cy.device = "GPU"
+                return kind.lower()
+        prefs.compute_device_type = "NONE"
+        if want != "auto":
+            raise RuntimeError(f"cycles: backend.device is {want!r} but Blender finds no {want.upper()} device on "
+                               "this machine; use device: cpu, or auto to fall back to the CPU")
+        cy.device = "CPU"
+        return "cpu"
 
     def _make_camera(self):
         bpy = self._bpy
@@ -345,7 +371,7 @@ class CyclesBackend:
         seconds = time.perf_counter() - t0
         check_finite(linear, "cycles render")
         stats = ps.stats()
-        stats.update(seconds=round(seconds, 4), threads=self.threads, seed=int(seed) % (2**31))
+        stats.update(seconds=round(seconds, 4), threads=self.threads, seed=int(seed) % (2**31), device=self.device)
         t_tone = time.perf_counter()
         rgb = linear_to_srgb8(linear)
         stats["phases"] = {"setup": t_setup - t0, **self.last_phases, "tonemap": time.perf_counter() - t_tone}

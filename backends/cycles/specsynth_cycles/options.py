@@ -12,6 +12,11 @@ from specsynth.spec.models import BackendOptions
 class CyclesOptions(BackendOptions):
     name: Literal["cycles"] = "cycles"
     threads: int = Field(0, ge=0, le=1024, description="Render threads; 0 = one per core.")
+    device: Literal["cpu", "auto", "cuda", "optix", "hip", "oneapi"] = Field(
+        "cpu", description="Where Cycles traces (and OIDN denoises): 'cpu'; a GPU kind, an error if Blender finds "
+        "none; or 'auto': OptiX, else CUDA, else HIP, else oneAPI, else the CPU. A GPU's pixels differ from the "
+        "CPU's in the last bits, so 'cpu' (the default) keeps builds identical across machines.",
+    )
     adaptive_threshold: float | None = Field(None, gt=0, description="Adaptive sampling noise threshold.")
     denoise_prefilter: Literal["none", "fast", "accurate"] = Field(
         "none", description="OIDN's treatment of the albedo/normal guides. Measured (docs/backends/cycles.md): "
