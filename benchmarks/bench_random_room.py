@@ -43,7 +43,7 @@ def main() -> None:
         if (k + 1) in (10, 50, 100, 150, 200, 300, 500) or k + 1 == args.rooms:
             rss[k + 1] = rss_mb()
     rest = sorted(seconds[1:])
-    print(f"| rooms | first s | median s | p90 s | max s |\n|---|---|---|---|---|")
+    print("| rooms | first s | median s | p90 s | max s |\n|---|---|---|---|---|")
     print(f"| {args.rooms} | {seconds[0]:.2f} | {statistics.median(rest):.2f} | {rest[int(0.9 * len(rest))]:.2f} | {rest[-1]:.2f} |")
     slowest = sorted(range(1, len(seconds)), key=seconds.__getitem__)[-3:][::-1]
     print("slowest rooms (variant: s): " + ", ".join(f"{1000 + k}: {seconds[k]:.2f}" for k in slowest))
