@@ -36,13 +36,16 @@ def main() -> None:
     graph = compile_spec(load_spec(ROOT / "specs/demo.yaml", [f"arrangements.count={args.arrangements}"]))
     spec = graph.spec
     seconds: list[float] = []
+    outcomes: list[physics.ArrangeResult] = []
     faces = [0, 0]  # given to Bullet, in the rooms' colliders
     real_arrange, real_cut = physics.arrange, physics.faces_in_region
 
     def timed_arrange(*a, **k):
         t0 = time.perf_counter()
         try:
-            return real_arrange(*a, **k)
+            result = real_arrange(*a, **k)
+            outcomes.append(result)
+            return result
         finally:
             seconds.append(time.perf_counter() - t0)
 
@@ -64,6 +67,9 @@ def main() -> None:
     print(f"{len(seconds)} arrangements of specs/demo.yaml, {'all' if args.all_colliders else 'near-stage'} colliders")
     print(f"physics.arrange s: median {statistics.median(seconds):.3f}, p90 {np.percentile(seconds, 90):.3f}, "
           f"max {max(seconds):.3f}, total {sum(seconds):.2f}")
+    sim = [r.sim_seconds for r in outcomes]
+    print(f"settled {sum(r.settled for r in outcomes)} of {len(outcomes)}; simulated s: median "
+          f"{statistics.median(sim):.2f}, max {max(sim):.2f}, total {sum(sim):.1f}")
     print(f"collider triangles given to Bullet: {faces[0]:,} of {faces[1]:,} ({100 * faces[0] / max(faces[1], 1):.0f} %)")
     print(f"objects kept {sum(r['objects'] for r in results)}, removed {sum(r['removed'] for r in results)}, "
           f"re-dropped {sum(r['redropped'] for r in results)}")

@@ -567,9 +567,10 @@ def _simulate(world: _World, bodies: list[_Body], stage: Stage) -> tuple[int, bo
     dt = phys.timestep
     max_steps = max(1, math.ceil(phys.max_time / dt - 1e-9))
     hold_steps = max(1, math.ceil(phys.hold_time / dt - 1e-9))
-    lin2, ang2 = phys.linear_threshold**2, phys.angular_threshold**2
+    # Mean speeds over the hold window, as the distance and angle the window may span.
+    reach = (phys.linear_threshold * hold_steps * dt, phys.angular_threshold * hold_steps * dt)
     active = [b for b in bodies if b.uid >= 0 and not b.frozen]
-    calm = {b.index: 0 for b in active}
+    calm: dict[int, _CalmWindow] = {}
     lost: dict[int, str] = {}
     if not active:
         return 0, True, lost
@@ -585,7 +586,7 @@ def _simulate(world: _World, bodies: list[_Body], stage: Stage) -> tuple[int, bo
                 substeps = want
                 p.setPhysicsEngineParameter(numSubSteps=substeps, physicsClientId=c)
             p.stepSimulation(physicsClientId=c)
-            all_calm, want = _after_step(world, active, calm, lost, limit, hold_steps, lin2, ang2, dt, stage)
+            all_calm, want = _after_step(world, active, calm, lost, limit, hold_steps, reach, dt, stage)
             if step % check_every == 0 and active:
                 xy = np.array([p.getBasePositionAndOrientation(b.uid, physicsClientId=c)[0][:2] for b in active])
                 for b, inside in zip(list(active), stage.contains(xy)):
@@ -594,7 +595,7 @@ def _simulate(world: _World, bodies: list[_Body], stage: Stage) -> tuple[int, bo
                         lost[b.index] = "left_stage"
                         world.remove(b)
                         active.remove(b)
-                all_calm = all_calm and all(calm[b.index] >= hold_steps for b in active)
+                all_calm = all_calm and all(calm[b.index].steps >= hold_steps for b in active)
             if all_calm:
                 return step, True, lost
     finally:
@@ -603,13 +604,39 @@ def _simulate(world: _World, bodies: list[_Body], stage: Stage) -> tuple[int, bo
     return max_steps, False, lost
 
 
-def _after_step(world, active, calm, lost, limit, hold_steps, lin2, ang2, dt, stage) -> tuple[bool, int]:
-    """Update settling counters and drop lost bodies; returns (all calm, sub-steps for the next step)."""
+@dataclass
+class _CalmWindow:
+    """A body's pose when its current calm window began, and the steps it has stayed near it."""
+
+    pos: tuple[float, float, float]
+    q: tuple[float, float, float, float]
+    steps: int = 0
+
+
+def quat_angle(q0, q1) -> float:
+    """Angle (rad) of the rotation between two orientations given as unit quaternions (x, y, z, w)."""
+    d = abs(q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3])
+    return 2.0 * math.acos(min(1.0, d))
+
+
+def _stays_calm(window: _CalmWindow, pos, q, reach: tuple[float, float]) -> bool:
+    """Whether a body at (pos, q) is still within ``reach`` = (metres, radians) of its window start.
+
+    Calm is judged on where a body is, not on its instantaneous velocity: objects resting in a pile
+    or on a triangle mesh jitter (measured on the demo's rooms: angular speed spikes of 0.2-1.4
+    rad/s while the centre moves 0.1-0.4 mm in 4 s), which a velocity test never sees as calm.
+    """
+    dx, dy, dz = pos[0] - window.pos[0], pos[1] - window.pos[1], pos[2] - window.pos[2]
+    return dx * dx + dy * dy + dz * dz <= reach[0] * reach[0] and quat_angle(window.q, q) <= reach[1]
+
+
+def _after_step(world, active, calm, lost, limit, hold_steps, reach, dt, stage) -> tuple[bool, int]:
+    """Update calm windows and drop lost bodies; returns (all calm, sub-steps for the next step)."""
     p, c = world.p, world.cid
     all_calm = True
     want = 1
     for b in list(active):
-        pos, _ = p.getBasePositionAndOrientation(b.uid, physicsClientId=c)
+        pos, q = p.getBasePositionAndOrientation(b.uid, physicsClientId=c)
         v, w = p.getBaseVelocity(b.uid, physicsClientId=c)
         # Entirely below the stage: it fell off or through; nothing can bring it back, so stop
         # simulating it instead of waiting for it to land somewhere far below.
@@ -621,11 +648,12 @@ def _after_step(world, active, calm, lost, limit, hold_steps, lin2, ang2, dt, st
             world.remove(b)
             active.remove(b)
             continue
-        if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < lin2 and w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < ang2:
-            calm[b.index] += 1
+        window = calm.get(b.index)
+        if window is not None and _stays_calm(window, pos, q, reach):
+            window.steps += 1
         else:
-            calm[b.index] = 0
-        if calm[b.index] < hold_steps:
+            window = calm[b.index] = _CalmWindow(pos, q)
+        if window.steps < hold_steps:
             all_calm = False
         # Fastest point: centre speed + spin * radius, plus what gravity adds in one step.
         speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])

@@ -248,9 +248,11 @@ class SceneRef(Strict):
 class Physics(Strict):
     timestep: float = Field(1 / 240, gt=0, le=0.05, description="Simulation step in seconds.")
     max_time: float = Field(8.0, gt=0, le=120, description="Simulated seconds before giving up settling.")
-    linear_threshold: float = Field(0.01, gt=0, description="Settled when |v| below this (m/s) ...")
-    angular_threshold: float = Field(0.1, gt=0, description="... and |omega| below this (rad/s) ...")
-    hold_time: float = Field(0.25, ge=0, description="... for this many simulated seconds.")
+    linear_threshold: float = Field(
+        0.01, gt=0, description="Settled when every object's mean speed (m/s) over a hold_time window is below this ..."
+    )
+    angular_threshold: float = Field(0.1, gt=0, description="... and its mean angular speed (rad/s) below this.")
+    hold_time: float = Field(0.25, ge=0, description="The settling window in simulated seconds (at least one step).")
     penetration_tolerance: float = Field(0.002, gt=0, description="Max allowed penetration depth (m).")
     on_invalid: Literal["redrop", "remove"] = Field(
         "redrop", description="What happens to an object that left the stage or penetrates."
