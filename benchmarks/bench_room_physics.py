@@ -5,7 +5,8 @@ untimed) and counting the scene triangles given to Bullet.
     .venv/bin/python benchmarks/bench_room_physics.py [--arrangements 20] [--all-colliders]
 
 `--all-colliders` gives Bullet every collider triangle of the room, as before the colliders were
-cut to the stage's neighbourhood (`physics.collider_region`), for comparison.
+cut to the stage's neighbourhood (`physics.collider_region`), for comparison. Triangles are
+counted as `_World.add_collider` receives them.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from specsynth import physics
+from specsynth.assets import meshio
 from specsynth.plan import seeds
 from specsynth.plan.compiler import compile_spec
 from specsynth.run import arrange as arrange_step
@@ -38,7 +40,7 @@ def main() -> None:
     seconds: list[float] = []
     outcomes: list[physics.ArrangeResult] = []
     faces = [0, 0]  # given to Bullet, in the rooms' colliders
-    real_arrange, real_cut = physics.arrange, physics.faces_in_region
+    real_arrange, real_add = physics.arrange, physics._World.add_collider
 
     def timed_arrange(*a, **k):
         t0 = time.perf_counter()
@@ -49,19 +51,21 @@ def main() -> None:
         finally:
             seconds.append(time.perf_counter() - t0)
 
-    def counted_cut(v, f, region):
-        kept = f if args.all_colliders else real_cut(v, f, region)
-        faces[0] += len(kept)
-        faces[1] += len(f)
-        return kept
+    def counted_add(world, v, f):
+        faces[0] += len(f)
+        return real_add(world, v, f)
 
-    physics.arrange, physics.faces_in_region = timed_arrange, counted_cut
+    physics.arrange, physics._World.add_collider = timed_arrange, counted_add
+    if args.all_colliders:
+        physics.box_meets_region = lambda box, region: True
+        physics.faces_in_region = lambda v, f, region: f
     with tempfile.TemporaryDirectory() as out:
         w = Worker(BuildContext(spec=spec, spec_dir=graph.spec_path.parent, out=Path(out)))
         results = []
         for arr in range(graph.n_arrangements):
             job, _, _ = graph.arrangement_jobs(arr)
-            w.scene(spec.scenes[0], seeds.job_seed(spec.seed, f"{job.id}/scene"))  # assembled, untimed
+            room = w.scene(spec.scenes[0], seeds.job_seed(spec.seed, f"{job.id}/scene"))  # assembled, untimed
+            faces[1] += sum(len(meshio.read_mesh(m.mesh_path).faces) for m in room.collider_meshes())
             results.append(arrange_step.run_arrange(w, job))
         w.close()
     print(f"{len(seconds)} arrangements of specs/demo.yaml, {'all' if args.all_colliders else 'near-stage'} colliders")

@@ -496,8 +496,26 @@ def collider_region(stage: Stage, radius: float) -> np.ndarray:
     return np.array([lo, hi])
 
 
+def box_meets_region(box: np.ndarray, region: np.ndarray) -> bool:
+    """Whether the box [[min], [max]] meets the region's box (touching counts)."""
+    return bool(np.all(box[1] >= region[0]) and np.all(box[0] <= region[1]))
+
+
+def _world_box(vertices: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """A box containing the vertices moved by the affine ``T``: their model box's corners, moved."""
+    lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
+    corners = np.array([[(lo, hi)[k >> i & 1][i] for i in range(3)] for k in range(8)])
+    moved = corners @ T[:3, :3].T + T[:3, 3]
+    return np.stack([moved.min(axis=0), moved.max(axis=0)])
+
+
 def faces_in_region(vertices: np.ndarray, faces: np.ndarray, region: np.ndarray) -> np.ndarray:
     """The faces whose bounding box meets the region's box (a superset of those that cross it)."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    if np.all(lo >= region[0]) and np.all(hi <= region[1]):
+        return faces  # every vertex inside: every face meets it (the common case near a stage)
+    if not box_meets_region(np.stack([lo, hi]), region):
+        return faces[:0]
     tri = vertices[faces]
     keep = np.all(tri.max(axis=1) >= region[0], axis=1) & np.all(tri.min(axis=1) <= region[1], axis=1)
     return faces[keep]
@@ -739,6 +757,8 @@ def arrange(
             for inst in scene.collider_meshes():
                 mesh = meshio.read_mesh(inst.mesh_path)
                 T = inst.matrix
+                if not box_meets_region(_world_box(mesh.vertices, T), region):
+                    continue  # most of a room: skip its transform and per-face test
                 # Colliders are placed in world coordinates directly: exact for any affine pose
                 # (including scale), and static bodies never move.
                 v = mesh.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3]

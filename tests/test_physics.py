@@ -20,8 +20,10 @@ from specsynth.model.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
 from specsynth.physics import (
     ArrangeError,
     _Body,
+    _random_rotation,
     _simulate,
     _World,
+    _world_box,
     arrange,
     build_collision_model,
     collider_region,
@@ -290,14 +292,19 @@ def test_decomposition_is_cached_once_per_mesh(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- colliders near the stage
 
-@settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 60))
-def test_faces_in_region_keeps_exactly_the_faces_whose_box_meets_the_region(seed, n):
+@settings(max_examples=120, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 60), where=st.sampled_from(["random", "around", "away"]))
+def test_faces_in_region_keeps_exactly_the_faces_whose_box_meets_the_region(seed, n, where):
     rng = np.random.default_rng(seed)
     v = rng.uniform(-3.0, 3.0, size=(3 * n, 3))
     f = rng.permutation(3 * n).reshape(n, 3)
     lo = rng.uniform(-2.0, 1.0, size=3)
     region = np.array([lo, lo + rng.uniform(0.0, 2.0, size=3)])
+    if where == "around":  # the whole mesh inside the region (its early return)
+        region = np.array([v.min(axis=0) - rng.uniform(0, 1, 3), v.max(axis=0) + rng.uniform(0, 1, 3)])
+    elif where == "away":  # the whole mesh beside the region along one axis, or just touching it
+        axis = int(rng.integers(3))
+        region[:, axis] = v[:, axis].max() + np.array([rng.choice([0.0, 0.5]), 1.0])
     kept = {tuple(t) for t in faces_in_region(v, f, region).tolist()}
     for t in f.tolist():
         box_lo, box_hi = v[t].min(axis=0), v[t].max(axis=0)
@@ -431,3 +438,17 @@ def test_a_jittering_object_at_rest_counts_as_settled(tmp_path):
     # Angular speed 0.5 rad/s at every step, five times the threshold, but no net turn.
     steps, settled = _slide(tmp_path, 0.0, jitter=0.5)
     assert settled and steps <= round(0.25 * 240) + 5
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scale=st.floats(0.01, 100.0))
+def test_world_box_contains_every_moved_vertex(seed, scale):
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(int(rng.integers(1, 50)), 3)).astype(np.float32)
+    T = np.eye(4)
+    T[:3, :3] = _random_rotation(rng) * scale * rng.uniform(0.5, 2.0, size=3)  # rotation, scale, shear
+    T[:3, 3] = rng.uniform(-10, 10, size=3)
+    moved = v.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    box = _world_box(v, T)
+    tol = 1e-9 * max(1.0, float(np.abs(moved).max()))
+    assert np.all(moved >= box[0] - tol) and np.all(moved <= box[1] + tol)
