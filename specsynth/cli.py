@@ -347,7 +347,7 @@ def cmd_bench(args) -> int:
     rows, savings = run_bench(graph, Path(args.out), n_views=args.views, repeats=args.repeats, ref_factor=args.ref_factor,
                      scale=args.scale, backends=args.backend or None, console=console,
                      levels=tuple(args.levels.split(",")) if args.levels else ("low", "medium", "high"),
-                     ladder=args.ladder)
+                     ladder=args.ladder, only=tuple(x for x in (args.only or "").split(",") if x))
     t = Table(title=f"bench: {args.spec} ({args.views} view(s), scale {args.scale})")
     for col in ("backend", "setting", "samples", "seconds", "relMSE", "PSNR dB", "SSIM"):
         t.add_column(col, justify="left" if col in ("backend", "setting") else "right")
@@ -473,6 +473,8 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--levels", help="comma-separated quality levels to bench (default low,medium,high)")
     p.add_argument("--ladder", action="store_true",
                    help="also each level at 1, 2, 4, ... samples with denoising: the cheapest that reaches its error")
+    p.add_argument("--only", help="comma-separated setting labels to bench (e.g. high,high+calibrated,high+denoise@2); "
+                   "the reference always runs")
     p.set_defaults(fn=cmd_bench)
 
     p = sub.add_parser("export", help="convert a built dataset for other tools (yolo: Ultralytics)")

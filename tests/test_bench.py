@@ -80,3 +80,24 @@ def test_bench_json_has_no_inf_or_nan():
     doc = {"rows": [{"psnr": float("inf"), "seconds": 1.5}], "savings": [{"seconds": float("nan")}], "n": 3}
     text = json.dumps(_finite(doc), allow_nan=False)
     assert json.loads(text) == {"rows": [{"psnr": None, "seconds": 1.5}], "savings": [{"seconds": None}], "n": 3}
+
+
+def test_only_picks_the_named_settings_and_always_the_reference():
+    from specsynth.plugins import backend_plugin
+    from specsynth.run.bench import pick_settings, settings_for
+
+    every = settings_for(backend_plugin("cycles"), 2, ("high",), ladder=True)
+    picked = pick_settings(every, ("high+calibrated", "high+denoise@2"))
+    assert [s.label for s in picked] == ["high+calibrated", "high+denoise@2", "reference"]
+    assert picked[-1].reference and pick_settings(every, ()) == every
+    with pytest.raises(ValueError, match=r"no setting 'high\+denoise@3'.*it has high, high\+calibrated"):
+        pick_settings(every, ("high+denoise@3",))
+
+
+def test_bench_refuses_an_unknown_setting_before_building_anything(tmp_path):
+    out = tmp_path / "bench"
+    r = subprocess.run([sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
+                        "--backend", "cycles", "--levels", "high", "--only", "hgh"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode != 0 and "--only: no setting 'hgh'" in r.stdout + r.stderr
+    assert not out.exists()

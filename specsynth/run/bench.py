@@ -71,6 +71,19 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
     return out
 
 
+def pick_settings(settings: list[Setting], only: tuple[str, ...]) -> list[Setting]:
+    """The settings labelled in ``only`` (all when empty), and always the reference every row needs.
+    A full ladder at VGA costs hours on a CPU; this benches the rows that answer one question."""
+    if not only:
+        return settings
+    labels = [st.label for st in settings if not st.reference]
+    unknown = [x for x in only if x not in labels]
+    if unknown:
+        raise ValueError(f"--only: no setting {', '.join(map(repr, unknown))} for backend "
+                         f"{settings[0].backend!r}; it has {', '.join(labels)}")
+    return [st for st in settings if st.reference or st.label in only]
+
+
 def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
     return float(np.mean((x - ref) ** 2 / (ref**2 + 1e-2)))
 
@@ -187,7 +200,7 @@ def scaled_intrinsics(intr, scale: float):
 
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
-              ladder: bool = False) -> list[Row]:
+              ladder: bool = False, only: tuple[str, ...] = ()) -> list[Row]:
     from ..outputs.images import write_png
     from .worker import BuildContext, Worker
 
@@ -195,10 +208,15 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
     spec = graph.spec
     intr = spec.intrinsics
     small = scaled_intrinsics(intr, scale)
+    names = backends or [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
+    for name in names if only else ():  # a wrong label fails before anything is built
+        try:
+            pick_settings(settings_for(backend_plugin(name), ref_factor, levels, ladder), only)
+        except PluginNotFound:
+            pass  # reported (and skipped) below
     picked, cams = _views(graph, out, n_views)
     if not picked:
         raise RuntimeError("no accepted view to benchmark; widen the camera ranges")
-    names = backends or [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
     rows: list[Row] = []
     savings: list[Saving] = []
     for name in names:
@@ -213,7 +231,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
         worker = Worker(BuildContext(spec=spec.model_copy(update={"intrinsics": small}), spec_dir=graph.spec_path.parent, out=out))
         refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        settings = settings_for(plugin, ref_factor, levels, ladder)
+        settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
         settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
         for st in settings:
             opts = dict(base_opts)
