@@ -17,6 +17,7 @@ state give bit-identical poses, in the same or in another process.
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 import os
@@ -504,7 +505,7 @@ def box_meets_region(box: np.ndarray, region: np.ndarray) -> bool:
 def _world_box(vertices: np.ndarray, T: np.ndarray) -> np.ndarray:
     """A box containing the vertices moved by the affine ``T``: their model box's corners, moved."""
     lo, hi = vertices.min(axis=0).astype(np.float64), vertices.max(axis=0).astype(np.float64)
-    corners = np.array([[(lo, hi)[k >> i & 1][i] for i in range(3)] for k in range(8)])
+    corners = np.array(list(itertools.product(*zip(lo, hi))))
     moved = corners @ T[:3, :3].T + T[:3, 3]
     return np.stack([moved.min(axis=0), moved.max(axis=0)])
 
