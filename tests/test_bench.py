@@ -44,6 +44,9 @@ def test_camera_savings_are_priced_with_measured_times():
     assert s["visibility pre-check"] == pytest.approx(3 * 2.0 - 0.3)
     assert s["scene loaded once per arrangement"] == pytest.approx(3 * 1.5)
     assert s["cache"] == pytest.approx(4.5)
+    # The spec's level not benched (`--levels high`): no price for the pre-check, rather than NaN.
+    s = {x.what for x in camera_savings("c", rows, "medium", (first, cached), load_s=1.5, per_arrangement=4)}
+    assert s == {"scene loaded once per arrangement", "cache"}
 
 
 @pytest.mark.slow

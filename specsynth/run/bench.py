@@ -154,14 +154,14 @@ def camera_savings(backend: str, rows: list[Row], level: str, cams: tuple[dict, 
                    per_arrangement: int) -> list[Saving]:
     """Skipping, priced with this bench's own measurements on this backend."""
     first, cached = cams
-    render = next((r.seconds for r in rows if r.backend == backend and r.setting == level), float("nan"))
-    out = [
-        Saving(backend, "visibility pre-check", first["rejected"] * render - first["rejected_seconds"], "view build",
-               f"{first['rejected']} sampled cameras rejected for {first['cameras']} view jobs "
-               f"({first['rejected_seconds']:.2f} s of checks) x {render:.2f} s per '{level}' render"),
-        Saving(backend, "scene loaded once per arrangement", (per_arrangement - 1) * load_s, "arrangement",
-               f"({per_arrangement} cameras - 1) x {load_s:.2f} s scene load (median)"),
-    ]
+    out = []
+    render = next((r.seconds for r in rows if r.backend == backend and r.setting == level), None)
+    if render is not None:  # priced only when the spec's level was benched (`--levels`, `--only`)
+        out.append(Saving(backend, "visibility pre-check", first["rejected"] * render - first["rejected_seconds"],
+                          "view build", f"{first['rejected']} sampled cameras rejected for {first['cameras']} view "
+                          f"jobs ({first['rejected_seconds']:.2f} s of checks) x {render:.2f} s per '{level}' render"))
+    out.append(Saving(backend, "scene loaded once per arrangement", (per_arrangement - 1) * load_s, "arrangement",
+                      f"({per_arrangement} cameras - 1) x {load_s:.2f} s scene load (median)"))
     if cached["ran"] == 0 and first.get("worker_seconds", 0) > 0:  # unknown when cached by an older bench
         out.append(Saving(backend, "cache", first["worker_seconds"] - cached["wall"], "rebuild of the views",
                           f"{first['jobs']} arrange/view jobs: {first['worker_seconds']:.2f} s first run, "
