@@ -126,6 +126,23 @@ def test_variant_is_reported(backend):
     assert backend.variant in backend.version()
 
 
+def test_a_variant_that_cannot_run_here_is_a_clear_error():
+    """Asking for CUDA without a GPU names the option and the fix when the backend starts, instead
+    of a Dr.Jit error in every render; an explicit variant that runs here is used as asked."""
+    import mitsuba as mi
+
+    from specsynth_mitsuba import variant
+
+    if variant._gpu_plausible():
+        pytest.skip("this machine has an NVIDIA driver")
+    with pytest.raises(RuntimeError, match=r"backend.variant is 'cuda_ad_rgb', but this machine has no NVIDIA"):
+        variant.choose_variant("cuda_ad_rgb")
+    with pytest.raises(RuntimeError, match=r"backend.variant is 'cuda_rgb': not in this Mitsuba build"):
+        variant.choose_variant("cuda_rgb")
+    if "llvm_ad_rgb" in mi.variants():
+        assert variant.choose_variant("llvm_ad_rgb") == ("llvm_ad_rgb", {})
+
+
 def test_white_furnace(backend, tmp_path):
     """Convex Lambertian sphere, albedo 0.5, uniform radiance-1 world: every sphere pixel is 0.5."""
     mesh = MeshInstance("ball", _sphere(tmp_path), "sphere", _pose(), MaterialIR(base_color=(0.5,) * 3, **DIFFUSE))

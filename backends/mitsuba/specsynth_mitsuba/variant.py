@@ -60,9 +60,7 @@ def choose_variant(requested: str = "auto") -> tuple[str, dict[str, str]]:
 
     compiled = set(mi.variants())
     if requested != "auto":
-        if requested not in compiled:
-            raise RuntimeError(f"Mitsuba variant {requested!r} is not in this build (have: {', '.join(sorted(compiled))})")
-        return requested, {}
+        return _checked(requested, compiled), {}
     skipped: dict[str, str] = {}
     for v in PREFERENCE:
         if v not in compiled:
@@ -78,3 +76,19 @@ def choose_variant(requested: str = "auto") -> tuple[str, dict[str, str]]:
             return v, skipped
         skipped[v] = why
     raise RuntimeError(f"no usable Mitsuba variant: {skipped}")
+
+
+def _checked(requested: str, compiled: set[str]) -> str:
+    """The variant a spec names, if it runs here; else an error naming the option and the fix
+    (a CUDA variant without a GPU would otherwise fail later, inside Dr.Jit, in every render)."""
+    field = f"backend.variant is {requested!r}"
+    if requested not in compiled:
+        raise RuntimeError(f"{field}: not in this Mitsuba build (have: {', '.join(sorted(compiled))})")
+    if requested.startswith("cuda") and not _gpu_plausible():
+        raise RuntimeError(f"{field}, but this machine has no NVIDIA GPU driver: use 'auto' (picks "
+                           "llvm_ad_rgb here) or run on a machine with a GPU")
+    if requested != "scalar_rgb":
+        ok, why = probe(requested)
+        if not ok:
+            raise RuntimeError(f"{field}, but it does not run on this machine ({why}); use 'auto'")
+    return requested
