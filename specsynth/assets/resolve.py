@@ -30,6 +30,8 @@ from ..model.colour import linear_to_srgb, srgb_to_linear
 from ..model.conventions import rpy_matrix
 from ..model.ir import MaterialIR
 from ..spec import models as spec_mod
+from . import bopmodels
+from .library import realsets
 from .library.cache import cache_dir
 from .library.hdris import (  # noqa: F401  (builtin_hdris re-exported)
     SOURCE as HDRI_SOURCE,
@@ -123,7 +125,13 @@ def _hash_json(obj) -> str:
 
 
 def expand_path(p: str, base: Path, what: str) -> Path:
-    """``${VAR}``/``~`` expansion, then relative to ``base``; an unset variable is an error, not a path."""
+    """``${VAR}``/``~`` expansion, then relative to ``base``; an unset variable is an error, not a path.
+    ``dataset:NAME/...`` names an installed real set (``library/realsets.py``)."""
+    if p.startswith(realsets.PREFIX):
+        try:
+            return realsets.resolve_ref(p, cache_dir())
+        except realsets.RealSetError as e:
+            raise AssetError(f"{what}: {e}") from None
     expanded = os.path.expanduser(os.path.expandvars(p))
     left = re.findall(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)", expanded)
     if left:
@@ -449,23 +457,46 @@ def _bop_texture_path(ply: Path) -> Path | None:
     return ply.parent / m.group(1).decode(errors="replace") if m else None
 
 
-def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[int]]:
+def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[int], str | None]:
+    """(folder, obj ids, a note for the user or None). A folder without ``models_info.json`` gets
+    it computed as the BOP toolkit does, cached by the models' content (``bopmodels``)."""
     folder = expand_path(objects.path, spec_dir, f"objects.path {objects.path!r}")
     if not folder.is_dir():
         raise AssetError(f"objects.path: BOP models folder {folder} does not exist. {BOP_HELP}")
     info = folder / "models_info.json"
-    if not info.is_file():
-        raise AssetError(f"objects.path: {folder} has no models_info.json, not a BOP models folder. {BOP_HELP}")
-    try:
-        ids = sorted(int(k) for k in json.loads(info.read_text()))
-    except (ValueError, TypeError) as e:
-        raise AssetError(f"{info}: corrupt models_info.json: {e}") from e
+    note = None
+    if info.is_file():
+        try:
+            ids = sorted(int(k) for k in json.loads(info.read_text()))
+        except (ValueError, TypeError) as e:
+            raise AssetError(f"{info}: corrupt models_info.json ({type(e).__name__})") from None
+    else:
+        ids = bopmodels.model_ids(folder)
+        if not ids:
+            raise AssetError(f"objects.path: {folder} has neither models_info.json nor obj_XXXXXX.ply files: "
+                             f"not a BOP models folder. {BOP_HELP}")
+        _, cached = bopmodels.computed_models_info(folder, cache_dir(), _model_points)
+        note = (f"objects.path: {folder} has no models_info.json; computed it for its {len(ids)} models as the "
+                f"BOP toolkit's calc_model_info.py does (cached as {cached})")
     if objects.ids is not None:
         unknown = sorted(set(objects.ids) - set(ids))
         if unknown:
-            raise AssetError(f"objects.ids: {unknown} not in {info} (has {ids})")
+            raise AssetError(f"objects.ids: {unknown} not in {folder} (has {ids})")
         ids = sorted(set(objects.ids))
-    return folder, ids
+    return folder, ids, note
+
+
+def _model_points(path: Path) -> np.ndarray:
+    mesh, _ = read_any_mesh(path)
+    return mesh.vertices
+
+
+def bop_folder_notes(objects: spec_mod.Objects, spec_dir: Path) -> list[str]:
+    """What resolving the spec's BOP folder did that the user should hear about."""
+    if objects.path is None:
+        return []
+    note = _bop_folder(objects, Path(spec_dir))[2]
+    return [note] if note else []
 
 
 def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
@@ -473,7 +504,7 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
     out: list[_Source] = []
     used: set[int] = set()
     if objects.path is not None:
-        folder, ids = _bop_folder(objects, spec_dir)
+        folder, ids, _ = _bop_folder(objects, spec_dir)
         for i in ids:
             p = folder / f"obj_{i:06d}.ply"
             if not p.is_file():

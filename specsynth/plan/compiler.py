@@ -15,6 +15,7 @@ from typing import Iterator
 
 from ..assets.resolve import (
     AssetError,
+    bop_folder_notes,
     builtin_objects,
     catalogue_objects,
     check_texture,
@@ -156,6 +157,8 @@ class JobGraph:
     # Content hash of each spec.scenes entry: an arrangement's key holds only its own scene's, so
     # editing one scene's texture re-runs exactly the arrangements drawn in that scene.
     scene_keys: tuple[str, ...] = ()
+    # What compiling did that the user should hear about (e.g. a models_info.json computed).
+    notes: tuple[str, ...] = ()
 
     @property
     def n_arrangements(self) -> int:
@@ -221,8 +224,10 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     problems = check_budgets(spec, loaded) + check_capabilities(spec, loaded)
     if problems:  # before hashing assets or loading scenes: refusing is the cheap part
         raise SpecError(problems)
+    notes: list[str] = []
     try:
         asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
+        notes += bop_folder_notes(spec.objects, loaded.directory)
     except AssetError as e:
         field = getattr(e, "field", None) or ("objects.path" if "objects.path" in str(e) else "objects")
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))
@@ -286,4 +291,5 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         asset_hashes={**asset_hashes, **scene_hashes},
         backend=backend,
         scene_keys=tuple(scene_hashes[f"scene:{ref.ref}"] for ref in spec.scenes),
+        notes=tuple(notes),
     )
