@@ -57,9 +57,12 @@ class BackendPlugin:
     calibrated: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def options_for(self, options: Any, quality: Any) -> Any:
-        """The spec's options with the level's calibration filled in where the spec is silent."""
+        """The spec's options with the level's calibration filled in where the spec is silent.
+
+        A calibration's few samples reach the paper's error only through its denoiser: a spec
+        that turns denoising off gets the paper preset's own samples instead of a noisy image."""
         cal = self.calibrated.get(quality.paper_level) if quality.calibrated else None
-        if not cal:
+        if not cal or (cal.get("denoise") and "denoise" in options.model_fields_set and not options.denoise):
             return options
         update = {k: v for k, v in cal.items() if k not in options.model_fields_set}
         return options.model_copy(update=update) if update else options

@@ -137,3 +137,20 @@ def test_example_flat_plugin_builds_and_validates_its_option(spec_file, tmp_path
         assert img.std() > 5  # the room, its floor texture and the objects, not one colour
     gt = json.loads((tmp_path / "out" / "bop" / "train_pbr" / "000000" / "scene_gt_info.json").read_text())
     assert sum(i["px_count_visib"] > 0 for v in gt.values() for i in v) > 0
+
+
+def test_a_calibrated_level_without_its_denoiser_renders_the_paper_samples():
+    """Calibrated 'high' is a few samples *with* denoising; a spec that turns denoising off must not
+    get those few samples raw (4 spp of noise), but the paper preset's own."""
+    from specsynth.plugins import BackendPlugin
+    from specsynth.spec.models import BackendOptions, Quality
+
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X",
+                           calibrated={"high": {"samples": 4, "denoise": True}})
+    high = Quality(level="high")
+    filled = plugin.options_for(BackendOptions(name="x"), high)
+    assert (filled.samples, filled.denoise) == (4, True)
+    off = plugin.options_for(BackendOptions(name="x", denoise=False), high)
+    assert (off.samples, off.denoise) == (None, False)  # None: the preset's max(AA, diffuse, specular) rays
+    assert plugin.options_for(BackendOptions(name="x", samples=16), high).denoise is True
+    assert plugin.options_for(BackendOptions(name="x"), Quality(level="paper_high")).samples is None
