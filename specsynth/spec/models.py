@@ -577,6 +577,10 @@ class Sensor(Strict):
     auto_exposure: bool = Field(
         False, description="Meter each image as a camera's auto exposure does: scale it so the geometric mean of its "
         "luminance is middle grey (0.18 linear), by a factor within [1/16, 16]; applied before 'exposure' jitter.")
+    blur: FloatRange(0.0, 20.0) | None = Field(
+        None, description="Optical softness (lens, anti-aliasing filter, demosaicking): a Gaussian blur of sigma "
+        "pixels, drawn per image in this range, applied to the linear image before noise. `specsynth fit` sets it "
+        "from real photographs' edge sharpness.")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")
     depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
@@ -591,7 +595,7 @@ class Sensor(Strict):
     @property
     def affects_rgb(self) -> bool:
         return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance
-                    or self.auto_white_balance or self.auto_exposure)
+                    or self.auto_white_balance or self.auto_exposure or (self.blur and self.blur[1] > 0))
 
 
 # --------------------------------------------------------------------------- outputs

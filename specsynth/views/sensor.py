@@ -2,8 +2,8 @@
 
 RGB: auto white balance divides out the colour of the light in view (the render over the view's
 albedo: what a camera's AWB estimates, here known exactly) and auto exposure meters the image to
-middle grey; then exposure and white-balance errors scale the linear radiance, then shot noise
-(std proportional to the square root of the signal) and read noise (constant std) are added, all
+middle grey; then exposure and white-balance errors scale the linear radiance, the optics blur it,
+then shot noise (std proportional to the square root of the signal) and read noise (constant std) are added, all
 in linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
 light sensor's errors on a copy of the exact depth (axial noise growing with z², holes at depth
 jumps, random dropout, quantisation). Every draw comes from the generator passed in, which the
@@ -70,9 +70,21 @@ def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng:
         x = x * exposure_gain(x)
     gains = np.asarray(kelvin_rgb(6500.0)) / np.asarray(kelvin_rgb(kelvin))
     x = x * (2.0 ** stops) * (gains / gains.mean())
+    noise = rng.standard_normal(x.shape)
+    if sensor.blur:  # drawn after the noise: a spec without blur keeps every earlier draw
+        x = blur(x, float(rng.uniform(*sensor.blur)))
     noise_std = np.sqrt(sensor.shot_noise ** 2 * x + sensor.read_noise ** 2)
-    x = x + noise_std * rng.standard_normal(x.shape)
+    x = x + noise_std * noise
     return linear_to_srgb8(np.clip(x, 0.0, None).astype(np.float32))
+
+
+def blur(x: np.ndarray, sigma: float) -> np.ndarray:
+    """A Gaussian blur of ``sigma`` pixels over each channel (the image's edges mirrored)."""
+    if sigma <= 0:
+        return x
+    from scipy.ndimage import gaussian_filter
+
+    return gaussian_filter(x, sigma=(sigma, sigma, 0), mode="mirror")
 
 
 def jpeg_quality(sensor: Sensor, default: int, rng: np.random.Generator) -> int:
