@@ -173,6 +173,33 @@ def _solid_for_mass(tm):
 HULL_MAX_POINTS = 200_000
 
 
+# A scanned model's hull has 800-2,400 vertices (the LM models), and Bullet's contact search walks
+# every one of them for each support query: LM-O arrangements in the furnished rooms took twice
+# the CPU time with them (benchmarks/bench_arrange_scenes.py --objects lmo). The hull is kept as
+# its support points in HULL_DIRECTIONS directions spread evenly over the sphere: the same extent
+# along each of them and 0.3-1.0 mm inside the exact hull in between on the LM models, which are
+# 95-241 mm across (test_physics).
+HULL_DIRECTIONS = 1024
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """``n`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _fewer_hull_vertices(vertices: np.ndarray) -> np.ndarray:
+    """The hull's support points in HULL_DIRECTIONS directions (all of them when there are fewer)."""
+    if len(vertices) <= HULL_DIRECTIONS // 2:
+        return vertices
+    centre = vertices.mean(0)
+    keep = np.unique(np.argmax((vertices - centre) @ fibonacci_sphere(HULL_DIRECTIONS).T, axis=0))
+    return vertices[keep]
+
+
 def _convex_hull_vertices(points: np.ndarray) -> np.ndarray:
     import trimesh
 
@@ -189,7 +216,7 @@ def _convex_hull_vertices(points: np.ndarray) -> np.ndarray:
     try:
         hull = trimesh.convex.convex_hull(points)
         if len(hull.vertices) >= 4:
-            return np.asarray(hull.vertices, dtype=np.float64)
+            return _fewer_hull_vertices(np.asarray(hull.vertices, dtype=np.float64))
     except Exception:
         pass
     lo, hi = points.min(0), points.max(0)

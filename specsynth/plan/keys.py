@@ -17,8 +17,9 @@ from typing import Any
 # through it) and cuts coverage-mapped holes. arrange 2: scene colliders cut to the stage's
 # neighbourhood (physics.collider_region). arrange 3: settling judged on mean speed over the hold
 # window (physics._stays_calm), so jittering piles stop before max_time. render 3: a calibrated
-# level with denoising turned off renders the paper preset's samples (plugins.options_for).
-STAGE_VERSIONS = {"arrange": 3, "view": 2, "render": 3}
+# level with denoising turned off renders the paper preset's samples (plugins.options_for). arrange 4:
+# collision hulls of at most 1024 support points (physics.HULL_DIRECTIONS).
+STAGE_VERSIONS = {"arrange": 4, "view": 2, "render": 3}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 
