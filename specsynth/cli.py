@@ -424,6 +424,85 @@ def cmd_assets(args) -> int:
     return 0
 
 
+def cmd_fit(args) -> int:
+    from .compare import fit, specedit
+    from .compare.pipeline import measure
+    from .compare.split import open_split, check_models
+    from .plan.compiler import compile_spec
+
+    log = lambda m: print(m, file=sys.stderr)  # noqa: E731
+    loaded = load_spec(args.spec, [])
+    compile_spec(loaded)  # the spec must be buildable before anything is measured
+    real_split = open_split(args.real)
+    if not (real_split.has_gt_info and real_split.has_masks):
+        check_models(real_split, Path(args.models) if args.models else real_split.models)
+    out = Path(args.output)
+    if out.exists() and not out.is_file():
+        raise FileNotFoundError(f"{out}: not a file to write the fitted spec to")
+    real = measure(real_split, args.models, args.jobs, log)
+    edits = fit.geometry_edits(real, args.real)
+    if args.probe_images:
+        probe = _fit_probe(args, edits, log)
+        fmt = {p.rgb.suffix.lower().lstrip(".") for p in real_split.images}
+        edits += fit.sensor_edits(real, probe, args.real, "png" if fmt == {"png"} else None, seed=loaded.spec.seed)
+    doc = specedit.load(Path(args.spec).read_text())
+    for e in edits:
+        specedit.set_field(doc, e.field, e.value, e.comment)
+    rebased = specedit.rebase_paths(doc, Path(args.spec).parent, out.parent)
+    _write_validated(out, specedit.dump(doc))
+    t = Table(title=f"fitted {args.spec} to {args.real} -> {out}")
+    for col in ("field", "value", "from"):
+        t.add_column(col)
+    for e in edits:
+        t.add_row(e.field, str(e.value), e.comment.removeprefix("fit: "))
+    Console().print(t)
+    if rebased:
+        log(f"relative paths rewritten for the new folder: {', '.join(rebased)}")
+    return 0
+
+
+def _fit_probe(args, edits, log) -> list:
+    """The spec rendered small with the fitted cameras and a neutral sensor -> its 8-bit images."""
+    from .assets.library.cache import cache_dir
+    from .compare.split import open_split
+    from .plan import keys
+    from .plan.compiler import compile_spec
+    from .run.build import build
+    from PIL import Image
+
+    arrangements = max(1, -(-args.probe_images // 4))
+    sets = [f"{e.field}={json.dumps(e.value)}" for e in edits] + [
+        f"arrangements.count={arrangements}", "cameras.per_arrangement=4", "sensor.exposure=[0, 0]",
+        "sensor.blur=null", "sensor.shot_noise=0", "sensor.read_noise=0", "outputs.image_format=png"]
+    loaded = load_spec(args.spec, sets)
+    graph = compile_spec(loaded)
+    out = cache_dir() / "fit-probes" / keys.digest(loaded.spec.model_dump(mode="json"))[:16]
+    log(f"probe: {arrangements * 4} views of {args.spec} with the fitted cameras and a neutral sensor, into {out}")
+    s = build(graph, out, jobs=args.jobs or 1, console=None)
+    if not s.images:
+        raise FileNotFoundError(f"the probe build of {args.spec} wrote no image (see {out / 'failures.json'})")
+    return [np.asarray(Image.open(im.rgb).convert("RGB")) for im in open_split(out).images]
+
+
+def _write_validated(out: Path, text: str) -> None:
+    """Write the fitted spec only once it validates (beside its destination, renamed onto it)."""
+    import os
+    import tempfile
+
+    from .plan.compiler import compile_spec
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".yaml", dir=out.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        compile_spec(load_spec(tmp, []))
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
 def _with_set(p):
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a spec field, e.g. --set cameras.distance=[0.5,1.0]")
@@ -540,6 +619,16 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--models", help="BOP models folder, when a split has no masks and no models/ beside it")
     p.add_argument("--jobs", type=int, default=0, help="processes measuring images (default: the cores)")
     p.set_defaults(fn=cmd_compare)
+
+    p = sub.add_parser("fit", help="propose the spec whose images match a real split's statistics")
+    p.add_argument("real", help="a BOP split of real images, e.g. dataset:lmo/test")
+    p.add_argument("spec", help="the spec to fit")
+    p.add_argument("-o", "--output", required=True, help="the fitted spec to write (YAML, comments kept)")
+    p.add_argument("--probe-images", type=int, default=12,
+                   help="views rendered to fit the sensor (exposure, blur, noise); 0: fit the cameras only")
+    p.add_argument("--models", help="BOP models folder, when the real split has no masks and no models/ beside it")
+    p.add_argument("--jobs", type=int, default=0, help="processes (default: the cores)")
+    p.set_defaults(fn=cmd_fit)
 
     p = sub.add_parser("export", help="convert a built dataset for other tools (yolo: Ultralytics)")
     p.add_argument("format", choices=["yolo"])

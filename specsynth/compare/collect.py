@@ -24,6 +24,7 @@ from .split import Split, SplitError, SplitImage
 MAX_OBJECT_IMAGES = 1000
 MIN_VISIB = 0.1  # an instance counts in "instances per image" from this visible fraction (BOP'19 targets)
 INSTANCE_STATS = ("distance", "elevation", "size", "truncation", "visib_fract")
+INSTANCE_PLACE = ("centre_offset",)  # not compared: where the instance is in its image
 CHUNK = 16
 
 
@@ -32,7 +33,8 @@ class Collected:
     """Columns of numbers, one row per image / visible instance / measured object."""
 
     images: dict[str, np.ndarray] = field(default_factory=dict)  # IMAGE_STATS + inplane, instances
-    instances: dict[str, np.ndarray] = field(default_factory=dict)  # obj_id + INSTANCE_STATS
+    # obj_id + INSTANCE_STATS, and where each instance is: its image's row and its centre offset
+    instances: dict[str, np.ndarray] = field(default_factory=dict)
     objects: dict[str, np.ndarray] = field(default_factory=dict)  # obj_id + OBJECT_STATS
     up: str = "world"  # how the scene's up was known: "world" (cam_R_w2c) or "objects"
     n_images: int = 0
@@ -76,7 +78,7 @@ def measure_image(im: SplitImage, use_world_up: bool, with_objects: bool) -> dic
         row["instances"].append((inst.obj_id, geometry.distance(inst.t_m2c),
                                  geometry.elevation(inst.t_m2c, up) if up is not None else math.nan,
                                  geometry.box_size(inst.bbox_obj), geometry.truncation(inst.bbox_obj, im.width, im.height),
-                                 float(inst.visib_fract)))
+                                 float(inst.visib_fract), geometry.centre_offset(inst.t_m2c, im.K)))
         if with_objects and k < len(im.mask_visib):
             mask = _read_mask(im.mask_visib[k])
             if mask is not None and mask.shape == rgb.shape[:2]:
@@ -110,8 +112,10 @@ def collect(split: Split, jobs: int = 0, max_object_images: int = MAX_OBJECT_IMA
     out.images = {k: np.array([r["image"][k] for r in rows], np.float64) for k in IMAGE_STATS}
     out.images["inplane"] = np.array([r["inplane"] for r in rows], np.float64)
     out.images["instances"] = np.array([r["n_instances"] for r in rows], np.float64)
-    inst = np.array([t for r in rows for t in r["instances"]], np.float64).reshape(-1, 1 + len(INSTANCE_STATS))
-    out.instances = {"obj_id": inst[:, 0].astype(int), **{k: inst[:, 1 + i] for i, k in enumerate(INSTANCE_STATS)}}
+    cols = INSTANCE_STATS + INSTANCE_PLACE
+    inst = np.array([t for r in rows for t in r["instances"]], np.float64).reshape(-1, 1 + len(cols))
+    out.instances = {"obj_id": inst[:, 0].astype(int), **{k: inst[:, 1 + i] for i, k in enumerate(cols)},
+                     "image": np.repeat(np.arange(len(rows)), [len(r["instances"]) for r in rows])}
     obj = np.array([t for r in rows for t in r["objects"]], np.float64).reshape(-1, 1 + len(OBJECT_STATS))
     out.objects = {"obj_id": obj[:, 0].astype(int), **{k: obj[:, 1 + i] for i, k in enumerate(OBJECT_STATS)}}
     picks = np.linspace(0, n - 1, min(n_samples, n)).round().astype(int) if n else []

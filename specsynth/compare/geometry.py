@@ -37,6 +37,17 @@ def up_from_objects(rotations) -> np.ndarray | None:
     return m
 
 
+def centre_offset(t_m2c, K) -> float:
+    """Pixels from the principal point to the projection of the model's origin: the object a
+    camera aims at is the one nearest the centre (inf behind the camera)."""
+    t = np.asarray(t_m2c, np.float64)
+    if t[2] <= 0:
+        return float("inf")
+    K = np.asarray(K, np.float64)
+    u, v = K[0, 0] * t[0] / t[2] + K[0, 2], K[1, 1] * t[1] / t[2] + K[1, 2]
+    return float(np.hypot(u - K[0, 2], v - K[1, 2]))
+
+
 def distance(t_m2c) -> float:
     """Distance from the camera centre to the model's origin (BOP: its bounding-box centre), m."""
     return float(np.linalg.norm(np.asarray(t_m2c, np.float64)))

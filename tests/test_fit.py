@@ -1,0 +1,117 @@
+"""specsynth fit: the sensor fitted back from a known camera, the fitted spec file, and a small
+build of it against the real LM-O split (installed by `make install`)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+from scipy.ndimage import gaussian_filter
+
+from specsynth.assets.library.cache import cache_dir
+from specsynth.assets.library.realsets import installed, resolve_ref
+from specsynth.cli import main
+from specsynth.compare import fit
+from specsynth.compare.collect import Collected
+from specsynth.compare.imagestats import IMAGE_STATS, image_stats, srgb8_to_linear
+from specsynth.model.colour import linear_to_srgb8
+from specsynth.spec.yamlio import load_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def real_photos() -> list[np.ndarray]:
+    assert installed(cache_dir(), "lmo"), "the real LM-O split is installed by `make install`"
+    rgb = sorted((resolve_ref("dataset:lmo/test", cache_dir()) / "000002" / "rgb").glob("*.png"))
+    return [np.asarray(Image.open(p).convert("RGB")) for p in rgb[::40]]
+
+
+def _stats_of(images: list[np.ndarray]) -> Collected:
+    rows = [image_stats(im) for im in images]
+    return Collected(images={k: np.array([r[k] for r in rows]) for k in IMAGE_STATS}, n_images=len(rows))
+
+
+def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
+    """Real photographs through a known camera (+1.5 stops, a 1.2 px blur, shot noise 0.02) are the
+    'real' side; the photographs themselves are the probe. The fit finds that camera again."""
+    rng = np.random.default_rng(3)
+    made = []
+    for im in real_photos:
+        x = gaussian_filter(srgb8_to_linear(im) * 2.0 ** 1.5, sigma=(1.2, 1.2, 0), mode="mirror")
+        made.append(linear_to_srgb8(np.clip(x + 0.02 * np.sqrt(x) * rng.standard_normal(x.shape), 0, None)
+                                    .astype(np.float32)))
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), real_photos, "test", "png", seed=1)}
+    lo, hi = edits["sensor.exposure"].value
+    assert 1.3 < (lo + hi) / 2 < 1.7
+    blur_lo, blur_hi = edits["sensor.blur"].value
+    assert 0.9 < (blur_lo + blur_hi) / 2 < 1.5
+    assert 0.012 < edits["sensor.shot_noise"].value < 0.028
+    assert edits["outputs.image_format"].value == "png"
+    assert all(e.comment.startswith("fit: ") for e in edits.values())
+
+
+def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise(real_photos):
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(real_photos), real_photos, "test", None)}
+    assert edits["sensor.blur"].value is None and edits["sensor.shot_noise"].value == 0.0
+    lo, hi = edits["sensor.exposure"].value
+    assert abs((lo + hi) / 2) < 0.1
+    assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
+
+
+def _fitted(tmp_path: Path, spec: str, probe: int) -> tuple[Path, dict]:
+    out = tmp_path / "fitted" / "spec.yaml"
+    assert main(["fit", "dataset:lmo/test", spec, "-o", str(out), "--probe-images", str(probe), "--jobs", "2"]) == 0
+    return out, yaml.safe_load(out.read_text())
+
+
+def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path, capsys):
+    spec = ROOT / "specs" / "lmo_bl.yaml"
+    out, doc = _fitted(tmp_path, str(spec), probe=4)
+    fitted = load_spec(out, []).spec.model_dump(mode="json")
+    original = load_spec(spec, []).spec.model_dump(mode="json")
+    edited = {"cameras": {"distance", "elevation", "inplane"}, "visibility": {"threshold"},
+              "sensor": {"exposure", "blur", "shot_noise"}, "outputs": {"image_format"}}
+    for section, value in original.items():
+        keep = {k: v for k, v in value.items() if k not in edited.get(section, ())} if isinstance(value, dict) else value
+        got = {k: v for k, v in fitted[section].items() if k not in edited.get(section, ())} if isinstance(value, dict) \
+            else fitted[section]
+        assert got == keep, section
+    text = out.read_text()
+    for line in spec.read_text().splitlines():  # every comment of the original is still there
+        if "#" in line and not line.strip().startswith(("elevation", "distance", "threshold", "image_format")):
+            assert line.split("#", 1)[1].strip() in text, line
+    for field in ("elevation:", "distance:", "inplane:", "threshold:", "exposure:", "shot_noise:"):
+        assert any(ln.strip().startswith(field) and "# fit: " in ln for ln in text.splitlines()), field
+    real = json.loads((resolve_ref("dataset:lmo/test", cache_dir()) / "000002" / "scene_gt.json").read_text())
+    assert len(real) == 200
+    assert doc["cameras"]["elevation"][0] >= 5 and doc["cameras"]["distance"][1] <= 1.5
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_fitted_spec_built_small_moves_its_geometry_toward_the_real_split(tmp_path, capsys):
+    spec = ROOT / "specs" / "lmo_bl.yaml"
+    out, _ = _fitted(tmp_path, str(spec), probe=0)
+    small = ["--set", "arrangements.count=4", "--set", "cameras.per_arrangement=10", "--jobs", "2"]
+    distances = {}
+    for name, s in (("original", spec), ("fitted", out)):
+        if name == "fitted":  # the arrangements are the same: take them from the first build's store
+            shutil.copytree(tmp_path / "original" / ".specsynth", tmp_path / name / ".specsynth")
+        assert main(["build", str(s), "--out", str(tmp_path / name), *small]) == 0
+        capsys.readouterr()
+        assert main(["compare", str(tmp_path / name), "dataset:lmo/test", "--json", "--jobs", "2"]) == 0
+        distances[name] = json.loads(capsys.readouterr().out)["statistics"]
+    for stat in ("elevation", "distance"):
+        assert distances["fitted"][stat]["distance"] < distances["original"][stat]["distance"], stat
+
+
+def test_fit_refuses_a_folder_as_its_output(tmp_path, capsys):
+    (tmp_path / "out.yaml").mkdir()
+    assert main(["fit", "dataset:lmo/test", str(ROOT / "specs" / "lmo_bl.yaml"), "-o", str(tmp_path / "out.yaml"),
+                 "--probe-images", "0"]) == 2
+    assert "not a file" in capsys.readouterr().err
