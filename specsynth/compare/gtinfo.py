@@ -40,10 +40,9 @@ def _digest_files(paths) -> str:
 def _key(split: Split, models: dict[int, Path], with_depth: bool) -> str:
     from ..plugins import dist_version
 
-    scenes = sorted({im.rgb.parent.parent for im in split.images})
-    gt = _digest_files([s / "scene_gt.json" for s in scenes])
-    cams = [[im.key, im.K.tolist(), im.width, im.height] for im in split.images]
-    depth = _digest_files([im.depth for im in split.images if im.depth]) if with_depth else None
+    gt = _digest_files([s / "scene_gt.json" for s in split.scenes])
+    cams = [[im.key, im.K.tolist(), im.width, im.height] for im in split.iter_images()]
+    depth = _digest_files([im.depth for im in split.iter_images() if im.depth]) if with_depth else None
     return hashlib.sha256(json.dumps({"v": VERSION, "gt": gt, "cams": cams, "depth": depth, "delta": DELTA,
                                       "models": _digest_files(models[i] for i in sorted(models)),
                                       "pyrender": dist_version("pyrender")}).encode()).hexdigest()
@@ -54,7 +53,7 @@ def complete(split: Split, models_dir: Path | None = None, *, log=None) -> Split
     if split.has_gt_info and split.has_masks:
         return split
     models = check_models(split, models_dir or split.models)
-    with_depth = split.has_depth and all(im.depth is not None for im in split.images)
+    with_depth = split.has_depth and all(im.depth is not None for im in split.iter_images())
     folder = cache_dir() / "gtinfo" / _key(split, models, with_depth)
     done = folder / "done.json"
     if not done.is_file():
@@ -63,8 +62,8 @@ def complete(split: Split, models_dir: Path | None = None, *, log=None) -> Split
                 f"from its poses and models ({'its depth images' if with_depth else 'the annotated objects'} as the "
                 f"occluders), once, into {folder}")
         _annotate_all(split, models, folder, with_depth)
-        atomic_write_bytes(done, json.dumps({"images": len(split.images), "depth": with_depth}).encode())
-    return _with_computed(split, folder)
+        atomic_write_bytes(done, json.dumps({"images": split.n_images, "depth": with_depth}).encode())
+    return replace(split, computed=folder, has_gt_info=True, has_masks=True)
 
 
 def _scene_of(im: SplitImage, assets: dict) -> RenderScene:
@@ -99,7 +98,7 @@ def _annotate_all(split: Split, models: dict[int, Path], folder: Path, with_dept
     by_scene: dict[int, dict[str, list]] = {}
     annotators: dict[tuple[int, int], Annotator] = {}
     try:
-        for im in split.images:
+        for im in split.iter_images():
             size = (im.width, im.height)
             if size not in annotators:
                 annotators[size] = Annotator(*size)
@@ -121,20 +120,3 @@ def _annotate_all(split: Split, models: dict[int, Path], folder: Path, with_dept
             ann.close()
     for scene_id, info in by_scene.items():
         atomic_write_bytes(folder / f"{scene_id:06d}" / "scene_gt_info.json", json.dumps(info, sort_keys=True).encode())
-
-
-def _with_computed(split: Split, folder: Path) -> Split:
-    infos: dict[int, dict] = {}
-    images = []
-    for im in split.images:
-        if im.scene_id not in infos:
-            infos[im.scene_id] = json.loads((folder / f"{im.scene_id:06d}" / "scene_gt_info.json").read_text())
-        entries = infos[im.scene_id][str(im.im_id)]
-        insts = tuple(replace(inst, bbox_obj=tuple(e["bbox_obj"]), bbox_visib=tuple(e["bbox_visib"]),
-                              px_count_all=e["px_count_all"], px_count_visib=e["px_count_visib"],
-                              visib_fract=e["visib_fract"]) if inst.visib_fract is None else inst
-                      for inst, e in zip(im.instances, entries))
-        masks = im.mask_visib if im.mask_visib and all(m is not None for m in im.mask_visib) else tuple(
-            folder / f"{im.scene_id:06d}" / "mask_visib" / f"{im.im_id:06d}_{k:06d}.png" for k in range(len(insts)))
-        images.append(replace(im, instances=insts, mask_visib=masks))
-    return replace(split, images=images, has_gt_info=True, has_masks=True)

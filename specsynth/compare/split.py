@@ -68,14 +68,33 @@ class SplitImage:
 
 @dataclass
 class Split:
+    """A checked split: its scene folders and what they hold. Images are read scene by scene when
+    iterated (:meth:`iter_images`), so that a split of any size costs the same memory."""
+
     path: Path  # the split folder
     dataset: Path  # the folder holding camera.json and models/
     name: str
-    images: list[SplitImage] = field(default_factory=list)
+    scenes: list[Path] = field(default_factory=list)
+    root: Path = Path("/")  # the dataset folder, links resolved: every file read lies inside it
+    camera: tuple | None = None  # (K, width, height) of camera.json
+    camera_scale: float = 1.0
+    n_images: int = 0
+    object_ids: frozenset[int] = frozenset()
     has_gt_info: bool = True
     has_masks: bool = True
     has_depth: bool = False
     synthetic: bool = False  # a specsynth build
+    computed: Path | None = None  # masks and scene_gt_info.json computed for a split without them (gtinfo)
+
+    def iter_images(self):
+        """Every image, in scene and image-id order, read and checked as :func:`open_split` did."""
+        for scene in self.scenes:
+            yield from _read_scene(self, scene)
+
+    @property
+    def images(self) -> list[SplitImage]:
+        """Every image at once: for small splits (a large one is streamed by :meth:`iter_images`)."""
+        return list(self.iter_images())
 
     @property
     def models(self) -> Path | None:
@@ -86,7 +105,7 @@ class Split:
         return None
 
     def obj_ids(self) -> list[int]:
-        return sorted({i.obj_id for im in self.images for i in im.instances})
+        return sorted(self.object_ids)
 
 
 def _regular(path: Path, root: Path, what: str) -> Path:
@@ -122,10 +141,17 @@ def _number(v, path: Path, where: str) -> float:
     return float(v)
 
 
+_NUMBER_TYPES = frozenset((int, float))  # by exact type: a bool is not a number here
+
+
 def _numbers(v, n: int, path: Path, where: str) -> np.ndarray:
     if not isinstance(v, list) or len(v) != n:
         raise SplitError(f"{path}: {where}: expected a list of {n} numbers")
-    return np.array([_number(x, path, f"{where}[{k}]") for k, x in enumerate(v)], np.float64)
+    if all(type(x) in _NUMBER_TYPES for x in v):
+        a = np.array(v, np.float64)
+        if np.isfinite(a).all():
+            return a
+    return np.array([_number(x, path, f"{where}[{k}]") for k, x in enumerate(v)], np.float64)  # names the bad one
 
 
 def _int(v, path: Path, where: str, lo: int = 0) -> int:
@@ -140,10 +166,16 @@ def _image_key(k: str, path: Path) -> int:
     return int(k)
 
 
+def _not_rotations(R: np.ndarray) -> np.ndarray:
+    """Which of the (N, 3, 3) matrices are not rotations. Published ground truth is orthonormal to
+    ~1e-2 (LM-O has det 1.014); garbage is far off."""
+    off = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    return (np.abs(np.linalg.det(R) - 1.0) > 0.05) | (off > 0.05)
+
+
 def _rotation(v, path: Path, where: str) -> np.ndarray:
     R = _numbers(v, 9, path, where).reshape(3, 3)
-    # Published ground truth is orthonormal to ~1e-2 (LM-O has det 1.014); garbage is far off.
-    if abs(np.linalg.det(R) - 1.0) > 0.05 or np.abs(R @ R.T - np.eye(3)).max() > 0.05:
+    if _not_rotations(R[None])[0]:
         raise SplitError(f"{path}: {where}: not a rotation matrix")
     return R
 
@@ -226,49 +258,82 @@ def open_split(ref: str | Path, cache: Path | None = None) -> Split:
         camera = _intrinsics(cam, dataset / "camera.json", "camera")
         camera_scale = _number(cam.get("depth_scale", 1.0), dataset / "camera.json", "depth_scale")
     split = Split(path=split_dir, dataset=dataset, name=split_dir.name if not single_scene else split_dir.parent.name,
-                  synthetic=synthetic)
-    for scene in scenes:
-        _read_scene(split, scene, root, camera, camera_scale)
-    if not split.images:
+                  scenes=scenes, root=root, camera=camera, camera_scale=camera_scale, synthetic=synthetic)
+    split.has_gt_info = all((sc / "scene_gt_info.json").exists() for sc in scenes)
+    split.has_masks = all((sc / "mask_visib").is_dir() for sc in scenes)
+    split.has_depth = any((sc / "depth").is_dir() for sc in scenes)
+    n, ids = 0, set()
+    for im in split.iter_images():  # every check, before any work; nothing is kept but counts
+        n += 1
+        ids.update(i.obj_id for i in im.instances)
+    if not n:
         raise SplitError(f"{split_dir}: holds no annotated images")
+    split.n_images, split.object_ids = n, frozenset(ids)
     return split
 
 
-def _read_scene(split: Split, scene: Path, root: Path, camera, camera_scale: float = 1.0) -> None:
-    scene_id = int(scene.name) if SCENE_DIR.match(scene.name) else 0
+def _root_of(split: Split, path: Path) -> Path:
+    """The folder ``path`` must stay inside: the dataset's, or the computed folder's for its files."""
+    if split.computed is not None and path.is_relative_to(split.computed):
+        return Path(os.path.realpath(split.computed))
+    return split.root
+
+
+def _listing(folder: Path, root: Path, what: str) -> dict[str, Path]:
+    """Name -> path of the regular files in ``folder`` (one directory read; only links are resolved,
+    and a link out of ``root`` or to something that is not a regular file is an error)."""
+    out = {}
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return out
+    for e in entries:
+        if e.is_symlink():
+            out[e.name] = _regular(Path(e.path), root, what)
+        elif e.is_file(follow_symlinks=False):
+            out[e.name] = Path(e.path)
+    return out
+
+
+def _scene_json(split: Split, scene: Path, name: str, required: bool = False) -> dict | None:
+    """A scene's JSON file, from the scene folder or, where it has none, the computed folder."""
+    path = scene / name
+    if not path.exists() and split.computed is not None and name == "scene_gt_info.json":
+        path = split.computed / scene.name / name
+    if not path.exists():
+        if required:
+            raise SplitError(f"{path}: {name} not found (a BOP scene needs its ground-truth poses)")
+        return None
+    data = _read_json(path, _root_of(split, path), name)
+    if not isinstance(data, dict) or (required and not data):
+        raise SplitError(f"{path}: expected {'a non-empty' if required else 'an'} object of image ids")
+    return data
+
+
+def _read_scene(split: Split, scene: Path):
+    """The images of one scene folder, each checked, in image-id order."""
+    root, scene_id = split.root, int(scene.name) if SCENE_DIR.match(scene.name) else 0
     gt_path = scene / "scene_gt.json"
-    if not gt_path.exists():
-        raise SplitError(f"{gt_path}: scene_gt.json not found (a BOP scene needs its ground-truth poses)")
-    gt = _read_json(gt_path, root, "scene_gt.json")
-    if not isinstance(gt, dict) or not gt:
-        raise SplitError(f"{gt_path}: expected a non-empty object of image ids")
-    if len(split.images) + len(gt) > MAX_IMAGES:
+    gt = _scene_json(split, scene, "scene_gt.json", required=True)
+    if len(gt) > MAX_IMAGES:
         raise SplitError(f"{gt_path}: more than {MAX_IMAGES:,} images in the split")
-    cams = {}
-    if (scene / "scene_camera.json").exists():
-        cams = _read_json(scene / "scene_camera.json", root, "scene_camera.json")
-        if not isinstance(cams, dict):
-            raise SplitError(f"{scene / 'scene_camera.json'}: expected an object of image ids")
-    info = None
-    if (scene / "scene_gt_info.json").exists():
-        info = _read_json(scene / "scene_gt_info.json", root, "scene_gt_info.json")
-        if not isinstance(info, dict):
-            raise SplitError(f"{scene / 'scene_gt_info.json'}: expected an object of image ids")
-    split.has_gt_info &= info is not None
-    mask_dir = scene / "mask_visib"
-    split.has_masks &= mask_dir.is_dir()
-    split.has_depth |= (scene / "depth").is_dir()
+    cams = _scene_json(split, scene, "scene_camera.json") or {}
+    info = _scene_json(split, scene, "scene_gt_info.json")
+    computed_masks = split.computed / scene.name / "mask_visib" if split.computed is not None else None
+    mask_dir = scene / "mask_visib" if (scene / "mask_visib").is_dir() else computed_masks
     rgb_dir = next((scene / d for d in ("rgb", "gray") if (scene / d).is_dir()), None)
     if rgb_dir is None:
         raise SplitError(f"{scene}: has no rgb/ folder")
-    files = {p.stem: p for p in rgb_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    files = {Path(n).stem: p for n, p in _listing(rgb_dir, root, "image").items()
+             if Path(n).suffix.lower() in IMAGE_SUFFIXES}
+    masks = _listing(mask_dir, _root_of(split, mask_dir), "mask") if mask_dir is not None else {}
+    depths = _listing(scene / "depth", root, "depth image")
     for key in sorted(gt, key=lambda k: _image_key(k, gt_path)):
         im_id = _image_key(key, gt_path)
         rgb = files.get(f"{im_id:06d}")
         if rgb is None:
             raise SplitError(f"{rgb_dir}: no image {im_id:06d} (.png/.jpg/.tif) for the entry {key!r} of {gt_path.name}")
-        _regular(rgb, root, "image")
-        K, w, h = _camera_of(key, cams, camera, scene)
+        K, w, h = _camera_of(key, cams, split.camera, scene)
         iw, ih = _image_size(rgb)
         if (w, h) != (None, None) and (iw, ih) != (w, h):
             raise SplitError(f"{rgb}: the image is {iw} x {ih} pixels, the camera says {w} x {h}")
@@ -276,14 +341,12 @@ def _read_scene(split: Split, scene: Path, root: Path, camera, camera_scale: flo
         if key in cams and isinstance(cams[key], dict) and "cam_R_w2c" in cams[key]:
             R_w2c = _rotation(cams[key]["cam_R_w2c"], scene / "scene_camera.json", f"{key!r}.cam_R_w2c")
         instances = _instances(gt[key], info.get(key) if info else None, gt_path, key)
-        masks = ()
-        if mask_dir.is_dir():
-            masks = tuple(_mask(mask_dir, im_id, k, root) for k in range(len(instances)))
-        depth = scene / "depth" / f"{im_id:06d}.png"
-        depth = _regular(depth, root, "depth image") if depth.exists() else None
-        scale = cams.get(key, {}).get("depth_scale", camera_scale) if isinstance(cams.get(key), dict) else camera_scale
+        mask_files = tuple(masks.get(f"{im_id:06d}_{k:06d}.png") for k in range(len(instances))) if masks else ()
+        depth = depths.get(f"{im_id:06d}.png")
+        scale = cams.get(key, {}).get("depth_scale", split.camera_scale) if isinstance(cams.get(key), dict) \
+            else split.camera_scale
         scale = _number(scale, scene / "scene_camera.json", f"{key!r}.depth_scale")
-        split.images.append(SplitImage(scene_id, im_id, rgb, K, iw, ih, instances, R_w2c, masks, depth, scale))
+        yield SplitImage(scene_id, im_id, rgb, K, iw, ih, instances, R_w2c, mask_files, depth, scale)
 
 
 def _camera_of(key: str, cams: dict, camera, scene: Path):
@@ -296,11 +359,6 @@ def _camera_of(key: str, cams: dict, camera, scene: Path):
         raise SplitError(f"{scene}: image {key} has no intrinsics: no entry in scene_camera.json and no camera.json "
                          f"in {scene.parent.parent}")
     return camera
-
-
-def _mask(mask_dir: Path, im_id: int, k: int, root: Path) -> Path | None:
-    p = mask_dir / f"{im_id:06d}_{k:06d}.png"
-    return _regular(p, root, "mask") if p.exists() else None
 
 
 def _instances(entries, infos, gt_path: Path, key: str) -> tuple[Instance, ...]:
@@ -318,12 +376,16 @@ def _instances(entries, infos, gt_path: Path, key: str) -> tuple[Instance, ...]:
             if name not in e:
                 raise SplitError(f"{gt_path}: {where}: missing {name}")
         obj_id = _int(e["obj_id"], gt_path, f"{where}.obj_id", 1)
-        R = _rotation(e["cam_R_m2c"], gt_path, f"{where}.cam_R_m2c")
+        R = _numbers(e["cam_R_m2c"], 9, gt_path, f"{where}.cam_R_m2c").reshape(3, 3)
         t = _numbers(e["cam_t_m2c"], 3, gt_path, f"{where}.cam_t_m2c") / 1000.0
         extra = {}
         if infos is not None:
             extra = _gt_info(infos[k], gt_path.parent / "scene_gt_info.json", where)
         out.append(Instance(obj_id, k, R, t, **extra))
+    if out:
+        bad = _not_rotations(np.stack([i.R_m2c for i in out]))
+        if bad.any():
+            raise SplitError(f"{gt_path}: {key!r}[{int(np.argmax(bad))}].cam_R_m2c: not a rotation matrix")
     return tuple(out)
 
 
