@@ -192,11 +192,14 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 
 
 def _fewer_hull_vertices(vertices: np.ndarray) -> np.ndarray:
-    """The hull's support points in HULL_DIRECTIONS directions (all of them when there are fewer)."""
+    """The hull's support points in HULL_DIRECTIONS directions and along the axes (all of them when
+    there are few)."""
     if len(vertices) <= HULL_DIRECTIONS // 2:
         return vertices
     centre = vertices.mean(0)
-    keep = np.unique(np.argmax((vertices - centre) @ fibonacci_sphere(HULL_DIRECTIONS).T, axis=0))
+    # The six axis directions too: the hull keeps its exact box, which the model's box tests use.
+    dirs = np.concatenate([fibonacci_sphere(HULL_DIRECTIONS), np.eye(3), -np.eye(3)])
+    keep = np.unique(np.argmax((vertices - centre) @ dirs.T, axis=0))
     return vertices[keep]
 
 
