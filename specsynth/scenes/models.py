@@ -59,6 +59,16 @@ class Cylinder(_Strict):
     cylinder: CylinderSize
 
 
+class TubeSpec(_Strict):
+    points: list[Vec3] = Field(min_length=2, max_length=256, description="Points the tube's axis passes "
+                               "through (metres, mesh frame); a smooth curve is drawn through them.")
+    radius: float = Field(gt=0, le=1, description="Metres.")
+
+
+class Tube(_Strict):
+    tube: TubeSpec = Field(description="A tube swept along a curve: a cable, a hose.")
+
+
 class Furniture(_Strict):
     furniture: str = Field(
         description="A Sweet Home 3D library model by id, e.g. 'Blend Swap CC-0#armchair' (specsynth furniture "
@@ -71,8 +81,8 @@ def _source_tag(v) -> str | None:
         return "file"
     if isinstance(v, dict) and len(v) == 1:
         key = next(iter(v))
-        return key if key in ("box", "plane", "cylinder", "furniture") else None
-    for cls, tag in ((Box, "box"), (Plane, "plane"), (Cylinder, "cylinder"), (Furniture, "furniture")):
+        return key if key in ("box", "plane", "cylinder", "tube", "furniture") else None
+    for cls, tag in ((Box, "box"), (Plane, "plane"), (Cylinder, "cylinder"), (Tube, "tube"), (Furniture, "furniture")):
         if isinstance(v, cls):
             return tag
     return None
@@ -85,6 +95,7 @@ Source = Annotated[
         Annotated[Box, Tag("box")],
         Annotated[Plane, Tag("plane")],
         Annotated[Cylinder, Tag("cylinder")],
+        Annotated[Tube, Tag("tube")],
         Annotated[Furniture, Tag("furniture")],
         Annotated[str, Tag("file")],
     ],
@@ -92,7 +103,8 @@ Source = Annotated[
         _source_tag,
         custom_error_type="invalid_source",
         custom_error_message="source must be {box: [sx, sy, sz]}, {plane: [sx, sy]}, "
-        "{cylinder: {radius, height}}, {furniture: <library id>} or a mesh file ('pybullet_data:...' or a relative path)",
+        "{cylinder: {radius, height}}, {tube: {points, radius}}, {furniture: <library id>} or a mesh file "
+        "('pybullet_data:...' or a relative path)",
     ),
 ]
 
@@ -142,6 +154,18 @@ class SceneMaterial(_Strict):
     metallic: float = Field(0.0, ge=0, le=1)
     specular: float = Field(0.5, ge=0, le=1, description="Dielectric F0 = 0.08 * specular.")
     emission: Color = Field((0.0, 0.0, 0.0), description="Emitted radiance, W/(sr m^2), linear RGB.")
+    emission_texture: str | None = Field(
+        None, description="An image multiplying 'emission' (sRGB-encoded), tiled like the texture: what a "
+        "screen shows. A path relative to the scene file.")
+    normal_map: str | None = Field(
+        None, description="Tangent-space normal map (OpenGL convention: green = +v), tiled like the texture: "
+        "'normals:0012' from the installed CC0 set (`specsynth assets list`) or an image path relative to the "
+        "scene file.")
+    normal_strength: float = Field(1.0, ge=0, le=4, description="Relief of the normal map: its tilt scaled by "
+                                   "this (glTF's normal scale).")
+    roughness_variation: float = Field(0.0, ge=0, le=0.5, description="Roughness varies across the surface by up "
+                                       "to +/- this much: rougher where the normal map is deeper (or, without "
+                                       "one, the texture darker), as wear and grime do.")
 
     @field_validator("base_color")
     @classmethod
@@ -163,12 +187,18 @@ class SceneMaterial(_Strict):
             raise ValueError("emission must be >= 0")
         return v
 
+    @model_validator(mode="after")
+    def _variation_source(self):
+        if self.roughness_variation and self.normal_map is None and self.texture is None:
+            raise ValueError("roughness_variation needs a texture or a normal_map to vary with")
+        return self
+
 
 class SceneMesh(_Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.\-]+$", description="Unique within the scene.")
     source: Source = Field(
-        description="{box: [sx, sy, sz]}, {plane: [sx, sy]}, {cylinder: {radius, height}}, "
-        "'pybullet_data:table/table.obj' or a path relative to the scene file: glTF/GLB and OBJ+MTL "
+        description="{box: [sx, sy, sz]}, {plane: [sx, sy]}, {cylinder: {radius, height}}, {tube: {points, "
+        "radius}}, 'pybullet_data:table/table.obj' or a path relative to the scene file: glTF/GLB and OBJ+MTL "
         "(every material kept), PLY, STL, URDF."
     )
     unit: Literal["m", "cm", "mm"] = Field("m", description="Length unit of a mesh file.")
@@ -252,6 +282,11 @@ class StageDef(_Strict):
         return v
 
 
+class FocusArea(_Strict):
+    polygon: list[tuple[float, float]] = Field(min_length=3, description="[[x, y], ...] world metres.")
+    height: float = Field(description="World Z of the surface, metres.")
+
+
 class SceneFile(_Strict):
     version: Literal[1] = 1
     name: str = Field(pattern=r"^[A-Za-z0-9_.\-]+$")
@@ -264,6 +299,12 @@ class SceneFile(_Strict):
         description="Support polygons to drop objects on; 'auto' (the default) finds them in the geometry: "
         "upward surfaces with room above them (specsynth.scenes.autostage).",
     )
+
+    focus: list[FocusArea] = Field(
+        default_factory=list, description="Where objects should mostly land: stages (declared or found) whose "
+        "centre lies in one of these areas, within 3 cm of its height, are drawn 'focus_share' of the time "
+        "together (the built-in rooms put their dressed desks and benches here).")
+    focus_share: float = Field(0.8, gt=0, le=1, description="The share of arrangements on the focus stages.")
 
     @property
     def auto_stages(self) -> bool:

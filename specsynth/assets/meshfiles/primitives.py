@@ -94,6 +94,72 @@ def cylinder(radius: float, height: float, segments: int = 48) -> MeshData:
     )
 
 
+def catmull_rom(points: np.ndarray, per_segment: int) -> np.ndarray:
+    """A centripetal-free (uniform) Catmull-Rom curve through ``points``, ``per_segment`` samples
+    between each pair, the end points included."""
+    p = np.asarray(points, np.float64)
+    if len(p) < 3:
+        t = np.linspace(0.0, 1.0, per_segment * (len(p) - 1) + 1)[:, None]
+        return p[0] * (1 - t) + p[-1] * t
+    ext = np.concatenate([2 * p[:1] - p[1:2], p, 2 * p[-1:] - p[-2:-1]])
+    out = []
+    t = np.linspace(0.0, 1.0, per_segment, endpoint=False)[:, None]
+    for k in range(len(p) - 1):
+        p0, p1, p2, p3 = ext[k], ext[k + 1], ext[k + 2], ext[k + 3]
+        out.append(0.5 * (2 * p1 + (p2 - p0) * t + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t ** 2
+                          + (3 * p1 - p0 - 3 * p2 + p3) * t ** 3))
+    out.append(p[-1:])
+    return np.concatenate(out)
+
+
+def tube(points, radius: float, sides: int = 10, per_segment: int = 8) -> MeshData:
+    """A tube of ``radius`` swept along a smooth curve through ``points`` (a cable, a hose), capped
+    at both ends; UVs in metres (u along the tube, v around it). Frames are carried along the curve
+    by parallel transport, so the tube never twists."""
+    c = catmull_rom(points, per_segment)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(c, axis=0), axis=1) > 1e-9])
+    c = c[keep]
+    if len(c) < 2:
+        raise ValueError("a tube needs two distinct points")
+    tangents = np.gradient(c, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    a = np.array([0.0, 0.0, 1.0]) if abs(tangents[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    n = np.cross(tangents[0], a)
+    n /= np.linalg.norm(n)
+    normals = []
+    for t in tangents:
+        n = n - t * (n @ t)
+        n /= np.linalg.norm(n)
+        normals.append(n)
+    normals = np.asarray(normals)
+    binormals = np.cross(tangents, normals)
+    ang = np.linspace(0.0, 2 * math.pi, sides + 1)  # the seam duplicated for UVs
+    ring = np.cos(ang)[None, :, None] * normals[:, None] + np.sin(ang)[None, :, None] * binormals[:, None]
+    verts = (c[:, None] + radius * ring).reshape(-1, 3)
+    norms = ring.reshape(-1, 3)
+    length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c, axis=0), axis=1))])
+    uv = np.stack(np.broadcast_arrays(length[:, None], (ang * radius)[None, :]), -1).reshape(-1, 2)
+    m, s1 = len(c), sides + 1
+    i, j = np.meshgrid(np.arange(m - 1), np.arange(sides), indexing="ij")
+    a0, a1 = i * s1 + j, i * s1 + j + 1
+    b0, b1 = a0 + s1, a1 + s1
+    faces = np.concatenate([np.stack([a0, b0, b1], -1).reshape(-1, 3), np.stack([a0, b1, a1], -1).reshape(-1, 3)])
+    parts_v, parts_n, parts_uv, parts_f = [verts], [norms], [uv], [faces]
+    offset = len(verts)
+    for end, sign in ((0, -1.0), (m - 1, 1.0)):  # caps
+        cap = np.concatenate([c[end][None], c[end] + radius * ring[end, :-1]])
+        parts_v.append(cap)
+        parts_n.append(np.tile(sign * tangents[end], (len(cap), 1)))
+        parts_uv.append(np.zeros((len(cap), 2)))
+        k = np.arange(sides)
+        f = np.stack([np.zeros(sides, int), 1 + k, 1 + (k + 1) % sides], 1)
+        parts_f.append(f + offset)
+        offset += len(cap)
+    mesh = MeshData(vertices=np.concatenate(parts_v).astype(np.float32), faces=np.concatenate(parts_f).astype(np.int32),
+                    normals=np.concatenate(parts_n).astype(np.float32), uv=np.concatenate(parts_uv).astype(np.float32))
+    return _fix_winding(mesh)
+
+
 def with_box_uvs(mesh: MeshData) -> MeshData:
     """``mesh`` with UVs by box projection in metres (as the primitives have), when it has none:
     each face is projected along the axis its normal is closest to, as Blender's generated
