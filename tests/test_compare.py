@@ -220,14 +220,19 @@ def test_flat_grey_has_no_colour_no_edges_no_texture():
 
 
 @settings(max_examples=80, deadline=None)
-@given(st.floats(0, 360), st.floats(-80, 80), st.floats(0.1, 3), st.floats(-60, 60))
+@given(st.floats(0, 360), st.floats(-89, 89), st.floats(0.1, 3), st.floats(-60, 60))
 def test_elevation_and_inplane_read_back_the_camera_that_made_them(az, el, d, roll):
+    """In-plane rotation is defined up to 10 degrees from looking straight along the up axis (an
+    elevation of 80); an elevation exactly at that boundary may go either way, so it is skipped."""
     R, t = camera_pose([0.3, -0.2, 0.75], az, el, d, roll)
     obj_t = R @ np.array([0.3, -0.2, 0.75]) + t  # the target seen from the camera
     up = geometry.up_from_world(R)
     assert geometry.elevation(obj_t, up) == pytest.approx(el, abs=1e-6)
     assert geometry.distance(obj_t) == pytest.approx(d, rel=1e-9)
-    assert geometry.inplane(up) == pytest.approx(roll, abs=1e-6)
+    if abs(el) < 79.999:
+        assert geometry.inplane(up) == pytest.approx(roll, abs=1e-6)
+    elif abs(el) > 80.001:
+        assert math.isnan(geometry.inplane(up))
 
 
 @settings(max_examples=60, deadline=None)

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import re
+
 import json
 import warnings
 from pathlib import Path
@@ -172,7 +174,8 @@ def test_random_room_parameters_from_the_spec(cache, tmp_path):
 
 def test_clutter_stands_on_open_tops_and_leaves_stages(cache):
     """Small catalogue items stand on tables, counters and cabinets (at the top's height, inside its
-    footprint, apart from each other) and are credited; the rooms keep stages above the floor."""
+    footprint, apart from each other) and are credited, on the dressed work surfaces too; the rooms
+    keep stages above the floor."""
     from specsynth.assets.library import furniture
     from specsynth.scenes.random_room import open_top, random_room
 
@@ -182,7 +185,7 @@ def test_clutter_stands_on_open_tops_and_leaves_stages(cache):
         sf, credits = random_room(seed, cache)
         pieces = [(furniture.find(m.source.furniture), m.transform.translation) for m in sf.meshes
                   if m.name.startswith("furniture_")]
-        for m in (m for m in sf.meshes if m.name.startswith("clutter_")):
+        for m in (m for m in sf.meshes if m.name.startswith("clutter_") or re.match(r"desk\d+_item_", m.name)):
             seen += 1
             assert m.source.furniture in small and m.collide
             assert f"furniture:{m.source.furniture}" in {c["asset"] for c in credits}

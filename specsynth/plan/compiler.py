@@ -24,7 +24,9 @@ from ..assets.resolve import (
     object_fingerprints,
 )
 from ..plugins import backend_plugin, dist_version
-from ..scenes import declares_stages, scene_fingerprint, stage_table
+from ..scenes import FIXED_ROOMS, PROCEDURAL, declares_stages, generated_name, scene_fingerprint, stage_table
+
+GENERATED = PROCEDURAL + FIXED_ROOMS
 from ..spec.models import DatasetSpec
 from ..spec.yamlio import LoadedSpec, SpecError
 from . import keys, seeds
@@ -252,10 +254,13 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     for i, ref in enumerate(spec.scenes):
         try:
             scene_hashes[f"scene:{ref.ref}"] = scene_fingerprint(ref, loaded.directory)
+            if ref.clutter != 1.0 and not generated_name(ref):
+                problems.append(loaded.locate(f"scenes.{i}.clutter", "clutter is for the built-in generated rooms "
+                                              f"({', '.join(GENERATED)}); {ref.ref!r} is not one"))
             if ref.stages and declares_stages(ref, loaded.directory):
                 # Found stages depend on the objects' sizes: their names are checked when the scene loads.
                 known = {st.name for st, _, _ in stage_table(ref, loaded.directory)}
-                unknown = [n for n in ref.stages if n not in known]
+                unknown = [n for n in ref.stages if n not in known and n != "focus"]
                 if unknown:
                     problems.append(loaded.locate(f"scenes.{i}.stages", f"scene {ref.ref!r} has no stage(s) {unknown}; it has {sorted(known)}"))
         except (AssetError, ValueError, FileNotFoundError) as e:

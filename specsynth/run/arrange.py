@@ -27,11 +27,8 @@ def run_arrange(w: Worker, job: Job) -> dict[str, Any]:
     ref = spec.scenes[index]
     variant = seeds.job_seed(spec.seed, f"{job.id}/scene") if procedural_name(ref) else None
     scene = w.scene(ref, variant)
-    names = ref.stages or sorted(scene.stages)
-    missing = [n for n in names if n not in scene.stages]
-    if missing:
-        raise ValueError(f"scene {ref.ref!r} has no stage(s) {missing}; it has {sorted(scene.stages)}")
-    stage = scene.stages[names[int(rng.integers(len(names)))]]
+    names = list(scene.stages) if ref.stages else sorted(scene.stages)  # the scene holds the ones asked for
+    stage = scene.stages[names[draw_stage([scene.stages[n].weight for n in names], rng)]]
 
     models = w.assets()
     if spec.objects.models_per_arrangement is not None:
@@ -71,6 +68,14 @@ def run_arrange(w: Worker, job: Job) -> dict[str, Any]:
     rec.credits += swapped_credits(w, rec, ref)
     w.store.put("arrange", job.key, rec.to_json())
     return {"id": job.id, "removed": rec.removed, "redropped": rec.redropped, "objects": len(placed)}
+
+
+def draw_stage(weights: list[float], rng) -> int:
+    """A stage's index, by weight; uniform (one integer draw, as before weights) when all are equal."""
+    if len(set(weights)) <= 1:
+        return int(rng.integers(len(weights)))
+    p = np.asarray(weights, np.float64)
+    return int(rng.choice(len(p), p=p / p.sum()))
 
 
 def swapped_credits(w: Worker, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:

@@ -74,7 +74,7 @@ class Worker:
         return self._assets
 
     def scene(self, ref: SceneRef, variant: int | None = None) -> SceneDesc:
-        key = (ref.ref, variant, ref.room.model_dump_json() if getattr(ref, "room", None) else None)
+        key = (ref.model_dump_json(), variant)  # the whole reference: stages, room, clutter all shape the scene
         if key not in self._scenes:
             if variant is not None:  # procedural rooms: keep the last few, so memory stays flat
                 rooms = [k for k in self._scenes if k[1] is not None]

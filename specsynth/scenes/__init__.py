@@ -30,11 +30,12 @@ from ..assets.meshio import MeshData, read_mesh
 from ..assets.resolve import AssetError
 from ..model.conventions import rpy_matrix
 from ..model.ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
-from . import autostage, filemeshes, gltfscene, random_room
-from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, World
+from . import autostage, filemeshes, gltfscene, random_room, surfaces
+from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, StageDef, World
 from .types import SceneDesc, Stage
 
 BUILTIN_DIR = Path(__file__).parent / "builtin"
+FOCUS = "focus"  # in a SceneRef's stages: every stage in the scene's focus areas
 SCENE_VERSION = 2  # 2: glTF/OBJ sources keep every material. Bump when load_scene's output changes for the same file
 
 __all__ = ["SceneError", "builtin_scenes", "declares_stages", "load_scene", "read_scene_file", "scene_fingerprint",
@@ -74,10 +75,11 @@ def generated_name(ref) -> str | None:
 def room_params(ref) -> random_room.RoomParams:
     """``random_room``'s parameters from a SceneRef's ``room:`` block (defaults without one)."""
     opts = getattr(ref, "room", None)
+    density = float(getattr(ref, "clutter", 1.0))
     if opts is None:
-        return random_room.RoomParams()
+        return random_room.RoomParams(density=density)
     d0, d1 = opts.density
-    return random_room.RoomParams(
+    return random_room.RoomParams(density=density,
         kinds=tuple(opts.kinds), width=tuple(opts.width), depth=tuple(opts.depth), height=tuple(opts.height),
         wall_pieces=(round(6 * d0), max(round(6 * d0), round(10 * d1))),
         middle_pieces=(round(1 * d0), max(round(1 * d0), round(2 * d1))),
@@ -172,7 +174,7 @@ def read_scene_file(path: Path) -> SceneFile:
             loc = [x for x in err["loc"] if not (isinstance(x, str) and x[:1].isupper())]
             if "source" in loc:  # drop the discriminator tag: it repeats the key the user wrote
                 i = loc.index("source")
-                if i + 1 < len(loc) and loc[i + 1] in ("box", "plane", "cylinder", "file"):
+                if i + 1 < len(loc) and loc[i + 1] in ("box", "plane", "cylinder", "tube", "file"):
                     loc = loc[: i + 1] + loc[i + 2 :] if loc[i + 1] == "file" or loc[i + 2 : i + 3] == [loc[i + 1]] or i + 2 == len(loc) else loc
             where = ".".join(str(x) for x in loc) or "(top)"
             pos = ""
@@ -245,6 +247,8 @@ def _build_geometry(m: SceneMesh, src: Path | None, what: str) -> MeshData:
         mesh = procedural.plane(m.source.plane)
     elif kind == "cylinder":
         mesh = procedural.cylinder(m.source.cylinder.radius, m.source.cylinder.height)
+    elif kind == "tube":
+        mesh = procedural.tube(m.source.tube.points, m.source.tube.radius)
     elif src.suffix.lower() == ".urdf":
         parts = []
         for vis in assets.parse_urdf(src):
@@ -299,9 +303,21 @@ def _material_ir(mat: SceneMaterial, own_texture: Path | None, scene_path: Path,
     elif mat.base_color is None and own_texture is not None:
         tex = own_texture
     base = mat.base_color if mat.base_color is not None else ((1.0, 1.0, 1.0) if tex is not None else (0.8, 0.8, 0.8))
+    normal = rough = glow = None
+    if mat.emission_texture is not None:
+        glow = assets.resolve_data_ref(mat.emission_texture, scene_path.parent, f"{what}.material.emission_texture")
+        assets.check_texture(glow, f"{what}.material.emission_texture")
+    textures_cache = assets.cache_dir() / "assets" / "textures"
+    if mat.normal_map is not None:
+        src = surfaces.resolve_normal_map(mat.normal_map, scene_path.parent, f"{what}.material.normal_map")
+        normal = surfaces.normal_texture(src, mat.normal_strength, textures_cache)
+    if mat.roughness_variation and (normal is not None or tex is not None):
+        src = Path(normal) if normal is not None else tex
+        rough = surfaces.roughness_texture(src, mat.roughness, mat.roughness_variation, textures_cache)
     return MaterialIR(
         base_color=tuple(base), use_vertex_colors=False, texture=None if tex is None else str(tex),
         roughness=mat.roughness, metallic=mat.metallic, specular=mat.specular, emission=tuple(mat.emission),
+        normal_texture=normal, roughness_texture=rough, emission_texture=None if glow is None else str(glow),
     )
 
 
@@ -373,7 +389,7 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
         path = Path(random_room.__file__)
         try:
             if name in FIXED_ROOMS:
-                sf, credits = random_room.fixed_room(name, cache)
+                sf, credits = random_room.fixed_room(name, cache, density=float(getattr(ref, "clutter", 1.0)))
             else:
                 sf, credits = random_room.random_room(int(variant or 0), cache, params=room_params(ref))
         except (furniture.LibraryError, textures.TextureLibraryError) as e:
@@ -381,6 +397,7 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
     else:
         path = _scene_path(ref, spec_dir)
         sf = read_scene_file(path)
+    credits += surfaces.library_credits(sf.meshes)
     meshes, colliders = [], []
     for m in sf.meshes:
         what = f"{path}: meshes.{m.name}"
@@ -404,8 +421,15 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
         stages = _auto_stages(path, meshes, colliders, clearance)
     else:
         stages = {s.name: _stage(s) for s in sf.stages}
+    stages = _focus_weights(stages, sf)
     wanted = getattr(ref, "stages", None)
     if wanted:
+        focus = [n for n, st in stages.items() if st.focus]
+        if FOCUS in wanted and not focus and generated_name(ref):
+            focus = list(stages)  # a generated room without a work surface: all its stages
+        if FOCUS in wanted and not focus:
+            raise SceneError(f"{path}: stages: {FOCUS!r} names the stages in the scene's focus areas, and it has none")
+        wanted = list(dict.fromkeys(n for w in wanted for n in (focus if w == FOCUS else [w])))
         unknown = [s for s in wanted if s not in stages]
         if unknown:
             raise SceneError(f"{path}: unknown stage(s) {unknown}; the scene has {', '.join(stages)}")
@@ -453,6 +477,20 @@ def _load_mesh(m: SceneMesh, path: Path, cache: Path, what: str) -> list[tuple[s
             for name, mname, ply, mesh_key, mat, has_uv in parts]
 
 
+def _focus_weights(stages: dict[str, Stage], sf: SceneFile) -> dict[str, Stage]:
+    """Stages in the scene's focus areas share ``focus_share`` of the draws, the others the rest."""
+    if not sf.focus:
+        return stages
+    areas = [(_stage(StageDef(name="focus", polygon=a.polygon, height=a.height)), a.height) for a in sf.focus]
+    focus = {n for n, st in stages.items()
+             if any(area.contains(st.centroid) and abs(st.height - h) <= 0.03 for area, h in areas)}
+    if not focus or len(focus) == len(stages):
+        return stages
+    w_focus = sf.focus_share / len(focus)
+    w_other = (1.0 - sf.focus_share) / (len(stages) - len(focus))
+    return {n: replace(st, weight=w_focus if n in focus else w_other, focus=n in focus) for n, st in stages.items()}
+
+
 def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], clearance: float | None) -> dict[str, Stage]:
     solid = set(colliders)
     tris = []
@@ -490,6 +528,8 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
         h.update(json.dumps(getattr(ref, "stages", None)).encode())
         room = getattr(ref, "room", None)
         h.update(room.model_dump_json().encode() if room is not None else b"default room")
+        h.update(f"clutter {float(getattr(ref, 'clutter', 1.0))!r}".encode())
+        h.update(pmndrs_manifest())
         return h.hexdigest()
     path = _scene_path(ref, spec_dir)
     sf = read_scene_file(path)
@@ -497,8 +537,13 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
     for m in sf.meshes:
         try:
             files += _source_files(m, path)[1]
-            if m.material.texture is not None:
-                files.append(assets.resolve_data_ref(m.material.texture, path.parent, f"{path}: meshes.{m.name}"))
+            for mat in (m.material, *m.materials.values()):
+                if mat.texture is not None:
+                    files.append(assets.resolve_data_ref(mat.texture, path.parent, f"{path}: meshes.{m.name}"))
+                if mat.emission_texture is not None:
+                    files.append(assets.resolve_data_ref(mat.emission_texture, path.parent, f"{path}: meshes.{m.name}"))
+                if mat.normal_map is not None:
+                    files.append(surfaces.resolve_normal_map(mat.normal_map, path.parent, f"{path}: meshes.{m.name}"))
         except SceneError:
             raise
         except AssetError as e:
@@ -514,6 +559,14 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
     # The stage subset is part of what a SceneRef means, so it is part of its key.
     h.update(json.dumps(getattr(ref, "stages", None)).encode())
     return h.hexdigest()
+
+
+def pmndrs_manifest() -> bytes:
+    """The installed normal maps' manifest: what the generated rooms' relief is drawn from."""
+    from ..assets.library import pmndrs
+
+    m = pmndrs.folder(assets.cache_dir()) / "manifest.json"
+    return m.read_bytes() if m.is_file() else b"no normal maps"
 
 
 def stage_table(name, spec_dir: Path | None = None) -> list[tuple[Stage, float, float]]:

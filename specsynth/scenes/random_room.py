@@ -11,21 +11,24 @@ Units: metres; the interior spans x in [-W/2, W/2], y in [-D/2, D/2], floor at z
 
 from __future__ import annotations
 
+import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..assets.library import furniture, textures
+from ..assets.library import furniture, pmndrs, textures
 from ..assets.library import pictures as picture_library
 from ..model.colour import kelvin_rgb
-from .models import LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
+from . import props
+from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
 # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed. 3: room parameters,
 # workshop and shop kinds, a lamp per room, fixed furnished rooms. 4: clutter on furniture tops.
-# 5: framed photographs on the walls.
-GENERATOR_VERSION = 5
+# 5: framed photographs on the walls. 6: dressed work surfaces (props), office_desk and lab kinds, floor
+# items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints).
+GENERATOR_VERSION = 6
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -36,6 +39,18 @@ ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
                  r"recycling|furnace|mower|radiator|water heater|technical table|filing cabinet|safe|wooden table"),
     "shop": (("Living room", "Kitchen", "Office", "Bedroom"), r"bookcase|shel|cabinet|chest|dresser|counter|rack|"
              r"desk table|wooden table|freezer"),
+    "office_desk": (("Office", "Living room"), r"desk|table|bookcase|shel|filing|cabinet|chair|armchair|plant|sofa"),
+    "lab": (("Office", "Miscellaneous", "Kitchen"), r"technical table|workbench|filing cabinet|bookcase|shel|cabinet|"
+            r"crate|box|barrel|recycling|extinguisher|stool|water heater|radiator|chair"),
+}
+# Kinds whose room is built around one work surface, the first piece placed (against the window wall
+# when it fits): the catalogue models that can be it.
+WORKTOPS: dict[str, str] = {
+    "office_desk": r"^(Blend Swap CC-0#lbDesk|Blend Swap CC-BY#simpleDesk|Blend Swap CC-BY#officeTable|"
+                   r"Blend Swap CC-BY#biurko3|Scopia#wooden_office_pear_table_rect|Scopia#wooden_table_office|"
+                   r"Scopia#table4|Scopia#black_table|Kator Legaz#folding-table)$",
+    "lab": r"^(Blend Swap CC-0#technicalTable1|Kator Legaz#folding-table|Scopia#table-on-trestles|"
+           r"Scopia#table-with-leaning-feet|Scopia#wooden_office_pear_table_rect)$",
 }
 
 
@@ -50,8 +65,10 @@ class RoomParams:
     wall_pieces: tuple[int, int] = (6, 10)
     middle_pieces: tuple[int, int] = (1, 2)
     categories: tuple[str, ...] | None = None  # catalogue categories instead of the kind's
-    clutter: tuple[int, int] = (1, 3)  # small catalogue items on each furniture top
+    clutter: tuple[int, int] = (1, 3)  # small catalogue items on each furniture top that is no work surface
     pictures: tuple[int, int] = (1, 3)  # framed photographs on the walls
+    density: float = 1.0  # how much stands on work surfaces and the floor (props.dress); 0: nothing
+    sun: float = 0.6  # chance of direct sunlight through the window
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
@@ -70,6 +87,7 @@ class Placed:
     y: float
     yaw: float  # degrees; the front faces -Y at 0
     footprint: tuple[float, float, float, float]  # x0, y0, x1, y1
+    middle: bool = False  # stands free in the room (not against a wall)
 
 
 def _fits(items, room_w: float, room_d: float, room_h: float) -> list[furniture.FurnitureItem]:
@@ -101,8 +119,31 @@ def _against_wall(rng, item, W, D, window) -> tuple[float, float, float, tuple]:
     return x, y, yaw, fp
 
 
-def furnish(rng, items, W, D, window, n_wall: int, n_middle: int) -> list[Placed]:
+def _worktop(rng, worktops: list[furniture.FurnitureItem], W: float, D: float, window) -> Placed | None:
+    """The room's work surface against the window wall, under the window when it fits there (daylight
+    on the desk, as in an office), else against any wall."""
+    for k in range(40):
+        item = worktops[int(rng.integers(len(worktops)))]
+        w, d = item.size[:2]
+        if w > W - 0.2:
+            continue
+        if k < 20:
+            x = float(np.clip((window[0] + window[1]) / 2 + rng.uniform(-0.4, 0.4), -W / 2 + w / 2, W / 2 - w / 2))
+            y = D / 2 - d / 2 - 0.01
+            return Placed(item, x, y, 0.0, (x - w / 2, y - d / 2, x + w / 2, y + d / 2))
+        pos = _against_wall(rng, item, W, D, window)
+        if pos is not None:
+            return Placed(item, *pos)
+    return None
+
+
+def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
+            worktops: list[furniture.FurnitureItem] | None = None) -> list[Placed]:
     placed: list[Placed] = []
+    if worktops:
+        first = _worktop(rng, worktops, W, D, window)
+        if first is not None:
+            placed.append(first)
     surfaces = [i for i in items if i.drop_on_top is not None and 0.35 < i.drop_on_top < 1.3]
     others = [i for i in items if i not in surfaces]
     for k in range(n_wall):
@@ -123,7 +164,7 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int) -> list[Placed
             y = float(rng.uniform(-D / 2 + d / 2 + 0.5, D / 2 - d / 2 - 0.5)) if D > d + 1.0 else 0.0
             fp = (x - w / 2, y - d / 2, x + w / 2, y + d / 2)
             if not _overlaps(fp, placed):
-                placed.append(Placed(item, x, y, 90.0 if turn else 0.0, fp))
+                placed.append(Placed(item, x, y, 90.0 if turn else 0.0, fp, middle=True))
                 break
     return placed
 
@@ -144,13 +185,38 @@ def open_top(item: furniture.FurnitureItem) -> float | None:
     return float(top)
 
 
+def is_worktop(item: furniture.FurnitureItem) -> bool:
+    """A desk, table or bench top to work at: dressed by :mod:`.props` rather than given a few items."""
+    top = open_top(item)
+    return top is not None and 0.6 <= top <= 1.0 and item.size[0] >= 0.9 and item.size[1] >= 0.5
+
+
+def dress_worktops(rng, placed: list[Placed], cache: Path, density: float):
+    """Every work surface dressed -> (meshes, lights, credits, focus areas: its stage area)."""
+    meshes, lights, credits, focus = [], [], [], []
+    for k, p in enumerate(placed):
+        if not is_worktop(p.item):
+            continue
+        # A piece against a wall has its back there; one in the middle is worked at from either side.
+        yaw = p.yaw if not p.middle else p.yaw + 180.0 * int(rng.integers(2))
+        top = props.Top(p.x, p.y, p.item.size[0], p.item.size[1], yaw, float(open_top(p.item)))
+        d = props.dress(top, rng, cache, f"desk{k:02d}", density)
+        meshes += d.meshes
+        lights += d.lights
+        credits += d.credits
+        u0, v0, u1, v1 = d.stage
+        focus.append(FocusArea(polygon=[top.world(u, v) for u, v in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))],
+                               height=top.z))
+    return meshes, lights, credits, focus
+
+
 def clutter(rng, placed: list[Placed], items: list[furniture.FurnitureItem], per_top: tuple[int, int]) -> list[SceneMesh]:
     """Small items standing on the tops of the placed furniture, none overlapping, each inside one
     half of its top (shrunk by a margin); stages are then found on what stays free around them."""
     out: list[SceneMesh] = []
     for p in placed:
         top = open_top(p.item)
-        if top is None or not items or per_top[1] == 0:
+        if top is None or not items or per_top[1] == 0 or is_worktop(p.item):
             continue
         x0, y0, x1, y1 = p.footprint
         # Clutter keeps to one half of the top (split along its long side): the other half stays a stage.
@@ -226,11 +292,13 @@ def redress(rng, item: furniture.FurnitureItem, cache: Path, woods: list, felt) 
             continue
         if felt is not None and any(w in low for w in FABRIC_WORDS):
             dye = DYES[int(rng.integers(len(DYES)))]
-            overrides[name] = SceneMaterial(texture=str(felt.path), base_color=dye, uv_scale=40.0, roughness=0.95, specular=0.2)
+            overrides[name] = SceneMaterial(texture=str(felt.path), base_color=dye, uv_scale=40.0, roughness=0.95, specular=0.2,
+                                            **_relief(rng, cache, "fabric", (0.2, 0.6)))
             credits.append(felt.credit)
         elif woods and any(w in low for w in WOOD_WORDS):
             t = woods[int(rng.integers(len(woods)))]
-            overrides[name] = SceneMaterial(texture=str(t.path), uv_scale=1.0, roughness=float(rng.uniform(0.3, 0.6)))
+            overrides[name] = SceneMaterial(texture=str(t.path), uv_scale=1.0, roughness=float(rng.uniform(0.3, 0.6)),
+                                            base_color=_tint(rng), **_relief(rng, cache, "wood", (0.15, 0.5)))
             credits.append(t.credit)
     return overrides, credits
 
@@ -340,65 +408,141 @@ def _free(wall: str, s: float, w: float, bottom: float, window, W: float, D: flo
     return not any(p.item.size[2] >= bottom - 0.05 and _overlaps((x0, y0, x1, y1), [p]) for p in placed)
 
 
-def random_room(seed: int, cache: Path, kind: str | None = None,
-                params: RoomParams = RoomParams()) -> tuple[SceneFile, list[dict]]:
-    """The room of ``seed`` and the credits of every third-party asset in it."""
-    rng = np.random.default_rng(seed)
-    kind = kind or params.kinds[int(rng.integers(len(params.kinds)))]
+def _room_shape(rng, params: RoomParams):
     W, D, H = (float(rng.uniform(*params.width)), float(rng.uniform(*params.depth)),
                float(rng.uniform(*params.height)))
     win_w = float(rng.uniform(1.0, min(2.0, W - 1.2)))
     wx = float(rng.uniform(-W / 2 + 0.5 + win_w / 2, W / 2 - 0.5 - win_w / 2))
     window = (wx - win_w / 2, wx + win_w / 2, float(rng.uniform(0.8, 1.0)), float(rng.uniform(2.0, min(2.3, H - 0.2))))
+    return W, D, H, window
 
-    library = textures.available(cache)
+
+def _relief(rng, cache: Path, kind: str, strength: tuple[float, float]) -> dict:
+    """A normal map of the installed CC0 set suiting ``kind``, its strength and a roughness variation,
+    as SceneMaterial fields (none when the set is not installed)."""
+    maps = pmndrs.normal_maps(cache, kind)
+    if not maps:
+        return {}
+    m = maps[int(rng.integers(len(maps)))]
+    return {"normal_map": f"normals:{m.name}", "normal_strength": round(float(rng.uniform(*strength)), 3),
+            "roughness_variation": round(float(rng.uniform(0.08, 0.25)), 3)}
+
+
+def _tint(rng, spread: float = 0.06, level: tuple[float, float] = (0.85, 1.0)) -> tuple[float, float, float]:
+    """A near-neutral colour multiplier: instances of one material are never quite the same."""
+    base = float(rng.uniform(*level))
+    return tuple(float(np.clip(base * (1.0 + rng.uniform(-spread, spread)), 0.0, 1.0)) for _ in range(3))
+
+
+def _shell(rng, W: float, D: float, H: float, window, cache: Path, library) -> tuple[list[SceneMesh], list[dict]]:
+    """Floor, ceiling and walls (textured, with relief), and a rug in half the rooms."""
     felt = next((t for t in library if t.kind == "fabric"), None)
     floor_t = _tex(rng, [t for t in library if t.kind == "floor"], "floor")
     wall_t = _tex(rng, [t for t in library if t.kind == "wall"], "wall")
-    floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, roughness=float(rng.uniform(0.3, 0.7)))
+    floor_kind = "tiles" if "tile" in floor_t.name and "wood" not in floor_t.name else "wood"
+    floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, base_color=_tint(rng),
+                              roughness=float(rng.uniform(0.4, 0.75)), **_relief(rng, cache, floor_kind, (0.15, 0.5)))
     paint = PAINTS[int(rng.integers(len(PAINTS)))]
-    wall_mat = SceneMaterial(texture=str(wall_t.path), base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85, specular=0.3)
+    wall_mat = SceneMaterial(texture=str(wall_t.path), base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85,
+                             specular=0.3, **_relief(rng, cache, "stone" if "brick" in wall_t.name else "wall", (0.1, 0.4)))
     meshes = [
         SceneMesh(name="floor", source={"plane": (W, D)}, material=floor_mat),
         _box("ceiling", (W + 2 * WALL, D + 2 * WALL, WALL), (0, 0, H + WALL / 2),
              SceneMaterial(base_color=(0.82, 0.82, 0.8), roughness=0.9), collide=False),
         *_walls(W, D, H, window, wall_mat),
     ]
-    meshes += _rug(rng, W, D, felt)
-    items = _fits(kind_items(kind, params.categories), W, D, H)
-    if not items:
-        raise furniture.LibraryError(f"no furniture of kind {kind!r} fits a {W:.1f} x {D:.1f} x {H:.1f} m room")
-    placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(params.wall_pieces[0], params.wall_pieces[1] + 1)),
-                     n_middle=int(rng.integers(params.middle_pieces[0], params.middle_pieces[1] + 1)))
+    rug = _rug(rng, W, D, felt)
+    return meshes + rug, [floor_t.credit, wall_t.credit] + ([felt.credit] if rug else [])
+
+
+def _furniture_meshes(rng, placed: list[Placed], cache: Path, library) -> tuple[list[SceneMesh], list[dict]]:
+    """The placed pieces, their plain wood and fabric re-dressed (with relief) in most cases."""
+    felt = next((t for t in library if t.kind == "fabric"), None)
     woods = [t for t in library if t.kind == "floor" and "wood" in t.name]
-    dressed_credits = []
+    meshes, credits = [], []
     for k, p in enumerate(placed):
         overrides, used = redress(rng, p.item, cache, woods, felt)
-        dressed_credits += used
+        credits += used
         meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id}, materials=overrides,
                                 transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
-    small = clutter(rng, placed, furniture.small_items(), params.clutter)
-    meshes += small
-    ceiling_colour = kelvin_rgb(float(rng.uniform(3000, 6500)))
-    lights = [
-        LightDef(kind="area", power=float(rng.uniform(60, 180)), size=(min(1.2, W / 3), min(1.2, D / 3)),
-                 color=ceiling_colour, translation=(float(rng.uniform(-W / 6, W / 6)), float(rng.uniform(-D / 6, D / 6)), H - 0.02)),
-        LightDef(kind="point", power=float(rng.uniform(20, 60)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
+    return meshes, credits
+
+
+def _lights(rng, W: float, D: float, H: float, window, placed, small, params: RoomParams) -> list[LightDef]:
+    """Ceiling panels, a bulb, a lamp, and in most rooms the sun through the window: light that
+    casts hard shadows next to bright patches, as real rooms have."""
+    n = int(rng.integers(1, 4))
+    colour = kelvin_rgb(float(rng.uniform(3500, 6500)))
+    total = float(rng.uniform(80, 240))
+    size = (1.2, 0.3) if rng.random() < 0.6 else (0.6, 0.6)
+    lights = [LightDef(kind="area", power=total / n, size=size, color=colour,
+                       translation=(float((k + 0.5) / n * W - W / 2 + rng.uniform(-0.2, 0.2)),
+                                    float(rng.uniform(-D / 4, D / 4)), H - 0.02)) for k in range(n)]
+    lights += [
+        LightDef(kind="point", power=float(rng.uniform(10, 40)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
                               float(rng.uniform(1.6, H - 0.4)))),
         _lamp(rng, placed, W, D, small),
     ]
+    if rng.random() < params.sun:
+        el, az = math.radians(float(rng.uniform(15, 50))), math.radians(float(rng.uniform(-45, 45)))
+        d = (math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), -math.sin(el))  # into the room, down
+        at = ((window[0] + window[1]) / 2, D / 2 + 0.5, (window[2] + window[3]) / 2)
+        lights.append(LightDef(kind="sun", power=float(rng.uniform(2.5, 7.0)), color=kelvin_rgb(float(rng.uniform(4800, 6200))),
+                               translation=at, look_at=(at[0] + d[0], at[1] + d[1], at[2] + d[2])))
+    return lights
+
+
+def _floor_spots(rng, W: float, D: float, placed: list[Placed], n: int) -> list[tuple[float, float]]:
+    """Free spots on the floor along the walls, for bins, bags and boxes."""
+    spots = []
+    for _ in range(20 * n):
+        if len(spots) == n:
+            break
+        wall = int(rng.integers(4))
+        t = float(rng.uniform(-0.5, 0.5))
+        x, y = [(t * (W - 0.8), D / 2 - 0.3), (t * (W - 0.8), -D / 2 + 0.3), (W / 2 - 0.3, t * (D - 0.8)),
+                (-W / 2 + 0.3, t * (D - 0.8))][wall]
+        box = (x - 0.3, y - 0.3, x + 0.3, y + 0.3)
+        if not _overlaps(box, placed) and all(math.dist((x, y), q) > 0.6 for q in spots):
+            spots.append((x, y))
+    return spots
+
+
+def random_room(seed: int, cache: Path, kind: str | None = None,
+                params: RoomParams = RoomParams()) -> tuple[SceneFile, list[dict]]:
+    """The room of ``seed`` and the credits of every third-party asset in it."""
+    rng = np.random.default_rng(seed)
+    kind = kind or params.kinds[int(rng.integers(len(params.kinds)))]
+    W, D, H, window = _room_shape(rng, params)
+    library = textures.available(cache)
+    meshes, credits = _shell(rng, W, D, H, window, cache, library)
+    items = _fits(kind_items(kind, params.categories), W, D, H)
+    if not items:
+        raise furniture.LibraryError(f"no furniture of kind {kind!r} fits a {W:.1f} x {D:.1f} x {H:.1f} m room")
+    worktops = [i for i in furniture.catalogue() if re.match(WORKTOPS[kind], i.id)] if kind in WORKTOPS else None
+    placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(params.wall_pieces[0], params.wall_pieces[1] + 1)),
+                     n_middle=int(rng.integers(params.middle_pieces[0], params.middle_pieces[1] + 1)), worktops=worktops)
+    pieces, dressed = _furniture_meshes(rng, placed, cache, library)
+    meshes += pieces
+    credits += [p.item.credit for p in placed] + dressed
+    desk_meshes, desk_lights, desk_credits, focus = dress_worktops(rng, placed, cache, params.density)
+    meshes += desk_meshes
+    credits += desk_credits
+    small = clutter(rng, placed, furniture.small_items(), params.clutter)
+    meshes += small
+    credits += [furniture.find(m.source.furniture).credit for m in small]
+    for k, (item, x, y, yaw) in enumerate(props.floor_items(rng, _floor_spots(rng, W, D, placed, 4), params.density)):
+        meshes.append(SceneMesh(name=f"floor_item_{k:02d}", source={"furniture": item.id},
+                                transform=Transform(translation=(x, y, 0.001), rotation=(0.0, 0.0, yaw))))
+        credits.append(item.credit)
+    lights = _lights(rng, W, D, H, window, placed, small, params) + desk_lights
     world = World(envmap=OUTDOOR_HDRIS[int(rng.integers(len(OUTDOOR_HDRIS)))], strength=float(rng.uniform(0.4, 0.9)),
                   rotation=float(rng.uniform(0, 360)))
-    # Drawn last, so that adding them left every earlier draw (and so the furniture) as it was.
     hung, hung_credits = pictures(rng, W, D, H, window, placed, params.pictures, picture_library.available())
     meshes += hung
-    sf = SceneFile(name=f"random_room_{kind}", meshes=meshes, lights=lights, world=world,
+    sf = SceneFile(name=f"random_room_{kind}", meshes=meshes, lights=lights, world=world, focus=focus,
                    description=f"random_room seed {seed}, kind {kind}, {len(placed)} pieces of furniture")
-    credits = [floor_t.credit, wall_t.credit] + [p.item.credit for p in placed] + dressed_credits
-    credits += [furniture.find(m.source.furniture).credit for m in small]
-    if any(m.name == "rug" for m in meshes):
-        credits.append(felt.credit)
     return sf, credits + hung_credits
 
 
@@ -414,10 +558,12 @@ FIXED_ROOMS: dict[str, tuple[str, int]] = {
     "bedroom": ("bedroom", 404),
     "workshop": ("workshop", 505),
     "shop": ("shop", 606),
+    "office_desk": ("office_desk", 707),
+    "lab": ("lab", 808),
 }
 
 
-def fixed_room(name: str, cache: Path) -> tuple[SceneFile, list[dict]]:
+def fixed_room(name: str, cache: Path, density: float = 1.0) -> tuple[SceneFile, list[dict]]:
     kind, seed = FIXED_ROOMS[name]
-    sf, credits = random_room(seed, cache, kind=kind, params=FIXED_PARAMS)
+    sf, credits = random_room(seed, cache, kind=kind, params=replace(FIXED_PARAMS, density=density))
     return sf.model_copy(update={"name": name}), credits

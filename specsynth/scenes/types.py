@@ -16,6 +16,8 @@ class Stage:
     name: str
     polygon: tuple[tuple[float, float], ...]
     height: float
+    weight: float = 1.0  # relative chance of being drawn for an arrangement (focus areas raise it)
+    focus: bool = False  # lies in one of the scene's focus areas (a dressed desk's free area)
 
     @property
     def area(self) -> float:

@@ -168,7 +168,7 @@ def _int_range(v: tuple[int, int], lo_min: int) -> tuple[int, int]:
 class RoomOptions(Strict):
     """Parameters of the procedural ``random_room`` (a new furnished room per arrangement)."""
 
-    kinds: list[Literal["living_room", "kitchen", "office", "bedroom", "workshop", "shop"]] = Field(
+    kinds: list[Literal["living_room", "kitchen", "office", "bedroom", "workshop", "shop", "office_desk", "lab"]] = Field(
         ["living_room", "kitchen", "office", "bedroom"], min_length=1,
         description="Room kinds to draw from (each picks its furniture from the library's categories).")
     width: FloatRange(2.5, 12.0) = Field((3.6, 6.0), description="Interior width range, metres.")
@@ -223,9 +223,14 @@ class SceneRandomization(Strict):
 class SceneRef(Strict):
     name: str | None = Field(None, description="Built-in scene name (see `specsynth scenes`).")
     file: str | None = Field(None, description="Scene file (YAML/JSON), relative to the spec file.")
-    stages: list[str] | None = Field(None, description="Stages to use, by name; default all.")
+    stages: list[str] | None = Field(None, description="Stages to use, by name; default all. 'focus': every stage "
+                                     "in the scene's focus areas (the built-in rooms' dressed desks and benches; a generated room without "
+                                     "one uses all its stages).")
     weight: float = Field(1.0, gt=0, description="Relative probability of choosing this scene.")
     room: RoomOptions | None = Field(None, description="Parameters of 'random_room' (only).")
+    clutter: float = Field(1.0, ge=0, le=3, description="How densely the built-in rooms' work surfaces and floors "
+                           "are cluttered (monitors, keyboards, papers, books, mugs, cables, boxes, bins): 0 none, "
+                           "1 a lived-in office (the default), up to 3. Built-in generated rooms only.")
     randomize: SceneRandomization = Field(SceneRandomization(), description="Domain randomisation per "
                                           "arrangement: surface materials, light colour, strength, position.")
 

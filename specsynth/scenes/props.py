@@ -1,0 +1,356 @@
+"""Clutter for work surfaces, placed (not dropped): what real desks and benches carry.
+
+A dressed top keeps a free *stage area* (where the dataset's objects will be dropped; the stage
+finder finds it again in the geometry) and gets, around and behind it: monitors showing a
+photograph, a keyboard and a mouse, a desk lamp with its spot light, stacks of books, boxes,
+catalogue items (mugs, bottles, plants, phones, tools), cables, and flat printed matter (pages,
+magazines, a board of fiducial markers) lying everywhere, the stage area included, as under the
+LM-O objects. Flat printed matter is under 2 mm thick and does not collide (objects rest on the
+top through it, sinking at most that far), so it never changes where a stage is.
+
+Everything comes from one ``numpy`` generator: the same seed gives the same desk everywhere.
+Coordinates: a top's local frame has ``u`` along its width and ``v`` towards its back (the wall
+side), origin at its centre; :class:`Top` maps them to the world.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..assets.library import furniture, printed
+from ..model.colour import kelvin_rgb
+from .models import LightDef, SceneMaterial, SceneMesh, Transform
+
+PAPER = 0.0002  # metres: one sheet
+FLAT_STEP = 0.0003  # each flat item lies this much above the one before: no coplanar faces
+ITEM_GAP = 0.02  # free space kept between placed items
+# Catalogue items by what they are, from their names.
+ITEM_GROUPS = {
+    "drink": r"mug|cup\b|coffee cup|glass\b|beer bottle|wine bottle|yogurt|milk|baby bottle|plastic cup",
+    "plant": r"plant|cactus|succulent|bonsai|bamboo",
+    "device": r"phone|iphone|tablet|remote|camera|headphones|calculator|clock|speaker|radio|mp3|joystick|watch",
+    "office": r"penbox|calendar|letter tray|ruler|scissors|text marker|tape|glasses|keys|stapler",
+    "tool": r"drill|hammer|screwdriver|tool\b|scale",
+    "floor": r"dustbin|recycling bin|backpack|handbag|briefcase|cardboard box|box$|basketball|soccer ball",
+}
+LAMPS = ("Scopia#desk_lamp1", "Scopia#desk_lamp2", "Blend Swap CC-0#desklamp")
+CABLE_COLOURS = ((0.02, 0.02, 0.02), (0.03, 0.03, 0.035), (0.85, 0.85, 0.83), (0.25, 0.25, 0.27))
+
+
+@dataclass(frozen=True)
+class Top:
+    """A rectangular work surface in the world: centre, size along its own axes, yaw of its width
+    axis from world +X (degrees), height. Its back (local +v) is the side against the wall."""
+
+    cx: float
+    cy: float
+    width: float
+    depth: float
+    yaw: float
+    z: float
+
+    def world(self, u: float, v: float) -> tuple[float, float]:
+        c, s = math.cos(math.radians(self.yaw)), math.sin(math.radians(self.yaw))
+        return self.cx + c * u - s * v, self.cy + s * u + c * v
+
+
+@dataclass
+class Dressing:
+    """What a top gets: scene meshes, lights, the credits of third-party assets, and the stage
+    area kept free (local u0, v0, u1, v1)."""
+
+    meshes: list[SceneMesh] = field(default_factory=list)
+    lights: list[LightDef] = field(default_factory=list)
+    credits: list[dict] = field(default_factory=list)
+    stage: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+
+class _Layout:
+    """Rectangles taken on a top (local frame), and the placing of new ones clear of them."""
+
+    def __init__(self, top: Top, rng, keep_free):
+        self.top, self.rng, self.taken = top, rng, [keep_free]
+
+    def free(self, box) -> bool:
+        u0, v0, u1, v1 = box
+        w, d = self.top.width / 2, self.top.depth / 2
+        if u0 < -w + 0.01 or u1 > w - 0.01 or v0 < -d + 0.01 or v1 > d - 0.01:
+            return False
+        return not any(u0 < b[2] + ITEM_GAP and b[0] < u1 + ITEM_GAP and v0 < b[3] + ITEM_GAP and b[1] < v1 + ITEM_GAP
+                       for b in self.taken)
+
+    def place(self, w: float, d: float, zone, tries: int = 12):
+        """A spot for a ``w`` x ``d`` footprint inside ``zone`` (u0, v0, u1, v1) clear of the rest,
+        taken; None when there is none."""
+        zu0, zv0, zu1, zv1 = zone
+        if zu1 - zu0 < w or zv1 - zv0 < d:
+            return None
+        for _ in range(tries):
+            u = float(self.rng.uniform(zu0 + w / 2, zu1 - w / 2))
+            v = float(self.rng.uniform(zv0 + d / 2, zv1 - d / 2))
+            box = (u - w / 2, v - d / 2, u + w / 2, v + d / 2)
+            if self.free(box):
+                self.taken.append(box)
+                return u, v
+        return None
+
+
+class _Dresser:
+    """Builds one top's meshes; every item's name is unique within the scene (``prefix``)."""
+
+    def __init__(self, top: Top, rng, cache: Path, prefix: str, layout: _Layout):
+        self.top, self.rng, self.cache, self.prefix, self.layout = top, rng, cache, prefix, layout
+        self.out = Dressing()
+        self.flat_z = top.z
+
+    def name(self, what: str) -> str:
+        return f"{self.prefix}_{what}_{len(self.out.meshes):03d}"
+
+    def put(self, what: str, source, u: float, v: float, z: float, yaw: float = 0.0, material=None,
+            collide: bool = True, scale=1.0, rotation=None) -> None:
+        x, y = self.top.world(u, v)
+        rot = rotation if rotation is not None else (0.0, 0.0, self.top.yaw + yaw)
+        self.out.meshes.append(SceneMesh(name=self.name(what), source=source, collide=collide,
+                                         material=material or SceneMaterial(),
+                                         transform=Transform(translation=(x, y, z), rotation=rot, scale=scale)))
+
+    def printed(self, kind: str) -> printed.Printed:
+        p = printed.printed(self.cache, kind, int(self.rng.integers(printed.VARIANTS[kind])))
+        self.out.credits += list(p.credits)
+        return p
+
+    # ------------------------------------------------------------------ flat printed matter
+
+    def flat(self, kind: str, w: float, d: float, u: float, v: float, yaw: float, thickness: float) -> None:
+        p = self.printed(kind)
+        self.flat_z += FLAT_STEP
+        mat = SceneMaterial(texture=str(p.path), uv_scale=(1.0 / w, 1.0 / d), roughness=float(self.rng.uniform(0.5, 0.9)),
+                            specular=0.3 if kind != "magazine" else 0.6)
+        self.put(kind, {"box": (w, d, thickness)}, u, v, self.flat_z + thickness / 2, yaw, mat, collide=False)
+        self.flat_z += thickness
+
+    # ------------------------------------------------------------------ things that stand
+
+    def monitor(self, u: float, v: float, yaw: float) -> None:
+        sw = float(self.rng.uniform(0.46, 0.62))
+        sh = sw * 9 / 16
+        lift = float(self.rng.uniform(0.09, 0.14))
+        z = self.top.z
+        c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
+
+        def at(dv: float) -> tuple[float, float]:  # a point dv behind the monitor's centre, in its own frame
+            return u - s * dv, v + c * dv
+
+        body = SceneMaterial(base_color=(0.02, 0.02, 0.022) if self.rng.random() < 0.8 else (0.75, 0.75, 0.76),
+                             roughness=0.4, specular=0.5)
+        self.put("monitor_base", {"box": (0.22, 0.17, 0.012)}, *at(0.02), z + 0.006, yaw, body)
+        self.put("monitor_neck", {"box": (0.05, 0.03, lift + 0.05)}, *at(0.06), z + (lift + 0.05) / 2, yaw, body)
+        cz = z + lift + sh / 2 + 0.02
+        self.put("monitor_panel", {"box": (sw + 0.03, 0.035, sh + 0.03)}, *at(0.03), cz, yaw, body)
+        screen = self.printed("screen")
+        glow = float(self.rng.uniform(0.6, 2.0))  # W/(sr m^2): about the radiance of a lit white wall
+        mat = SceneMaterial(base_color=(0.02, 0.02, 0.02), roughness=0.15, specular=0.6, emission=(glow, glow, glow),
+                            emission_texture=str(screen.path), uv_scale=(1.0 / sw, 1.0 / sh))
+        # half a millimetre in front of the panel's face (0.03 - 0.0175 = 0.0125 behind the centre)
+        self.put("monitor_screen", {"box": (sw, 0.002, sh)}, *at(0.011), cz, yaw, mat, collide=False)
+        self.cable(*at(0.06), z, toward_back=True)
+
+    def keyboard(self, u: float, v: float, yaw: float) -> None:
+        p = self.printed("keyboard")
+        w, d = 0.44, 0.145
+        mat = SceneMaterial(texture=str(p.path), uv_scale=(1.0 / w, 1.0 / d), roughness=0.5, specular=0.4)
+        self.put("keyboard", {"box": (w, d, 0.022)}, u, v, self.top.z + 0.011, yaw, mat)
+
+    def mouse(self, u: float, v: float, yaw: float) -> None:
+        colour = (0.03, 0.03, 0.03) if self.rng.random() < 0.7 else (0.85, 0.85, 0.86)
+        self.put("mouse", {"cylinder": {"radius": 0.03, "height": 0.03}}, u, v, self.top.z + 0.015, yaw,
+                 SceneMaterial(base_color=colour, roughness=0.3, specular=0.6), scale=(0.62, 1.0, 1.0))
+
+    def books(self, u: float, v: float, yaw: float, upright: bool) -> None:
+        n = int(self.rng.integers(2, 6 if upright else 5))
+        w, d = float(self.rng.uniform(0.15, 0.23)), float(self.rng.uniform(0.21, 0.29))
+        z = self.top.z
+        for k in range(n):
+            t = float(self.rng.uniform(0.012, 0.045))
+            cover = self.printed("cover")
+            mat = SceneMaterial(texture=str(cover.path), uv_scale=(1.0 / w, 1.0 / d), roughness=float(self.rng.uniform(0.35, 0.8)))
+            if upright:  # spines facing the front, standing side by side along u
+                off = (k - (n - 1) / 2) * 0.05
+                self.put("book", {"box": (t, w, d)}, u + off, v, z + d / 2, yaw, mat)
+            else:  # a pile, each book turned a little
+                self.put("book", {"box": (w, d, t)}, u, v, z + t / 2, yaw + float(self.rng.uniform(-12, 12)), mat)
+                z += t
+
+    def box(self, u: float, v: float, yaw: float, size) -> None:
+        p = self.printed("cardboard")
+        mat = SceneMaterial(texture=str(p.path), uv_scale=(1.0 / max(size[0], size[1]), 1.0 / size[2]), roughness=0.85,
+                            specular=0.2)
+        self.put("cardboard", {"box": tuple(size)}, u, v, self.top.z + size[2] / 2, yaw, mat)
+
+    def catalogue(self, item: furniture.FurnitureItem, u: float, v: float, yaw: float, what: str = "item") -> None:
+        self.put(what, {"furniture": item.id}, u, v, self.top.z + 0.001, yaw)
+        self.out.credits.append(item.credit)
+
+    def lamp(self, u: float, v: float, target: tuple[float, float]) -> None:
+        item = furniture.find(LAMPS[int(self.rng.integers(len(LAMPS)))])
+        self.catalogue(item, u, v, float(self.rng.uniform(-30, 30)), what="lamp")
+        x, y = self.top.world(u, v)
+        tx, ty = self.top.world(*target)
+        self.out.lights.append(LightDef(
+            kind="spot", power=float(self.rng.uniform(8, 30)), color=kelvin_rgb(float(self.rng.uniform(2700, 4200))),
+            translation=(x, y, self.top.z + item.size[2] * 0.9), look_at=(tx, ty, self.top.z),
+            spot_angle=float(self.rng.uniform(70, 110)), spot_blend=0.3))
+
+    def cable(self, u: float, v: float, z: float, toward_back: bool = False, length: float | None = None) -> None:
+        """A cable lying on the top from (u, v): to the back edge and down, or loose."""
+        r = float(self.rng.uniform(0.0022, 0.0035))
+        pts = [(u, v)]
+        n = int(self.rng.integers(3, 6))
+        step = length / n if length else float(self.rng.uniform(0.08, 0.16))
+        heading = math.pi / 2 if toward_back else float(self.rng.uniform(0, 2 * math.pi))
+        for _ in range(n):
+            heading += float(self.rng.uniform(-0.9, 0.9))
+            pu, pv = pts[-1]
+            pts.append((float(np.clip(pu + step * math.cos(heading), -self.top.width / 2 + 0.01, self.top.width / 2 - 0.01)),
+                        float(np.clip(pv + step * math.sin(heading), -self.top.depth / 2 + 0.01, self.top.depth / 2 - 0.01))))
+        world = [(*self.top.world(a, b), z + r) for a, b in pts]
+        if toward_back:
+            bx, by = self.top.world(pts[-1][0], self.top.depth / 2 + 0.01)
+            world += [(bx, by, z + r), (bx, by, z - 0.3)]
+        colour = CABLE_COLOURS[int(self.rng.integers(len(CABLE_COLOURS)))]
+        self.out.meshes.append(SceneMesh(
+            name=self.name("cable"), source={"tube": {"points": world, "radius": r}}, collide=False,
+            material=SceneMaterial(base_color=colour, roughness=0.45, specular=0.5)))
+
+
+@lru_cache(maxsize=None)
+def items(group: str) -> tuple[furniture.FurnitureItem, ...]:
+    """The catalogue's items of a group (small ones; the floor's may be bigger)."""
+    pat = re.compile(ITEM_GROUPS[group], re.I)
+    pool = furniture.small_items() + (_floor_extras() if group == "floor" else [])
+    return tuple(i for i in pool if pat.search(i.name))
+
+
+def _floor_extras() -> list[furniture.FurnitureItem]:
+    """Floor-standing catalogue items a little over the small-item size (bins, bags, boxes)."""
+    return [i for i in furniture.catalogue() if i.category in ("Miscellaneous", "Office", "Bedroom")
+            and 0.45 < max(i.size) <= 0.7 and i.elevation == 0 and not i.light and not i.door_or_window]
+
+
+def stage_area(top: Top, rng) -> tuple[float, float, float, float]:
+    """The free rectangle for the dataset's objects: centred along the top, towards its front."""
+    w = min(top.width - 0.1, max(0.45, float(rng.uniform(0.35, 0.5)) * top.width))
+    d = min(top.depth - 0.08, max(0.32, float(rng.uniform(0.5, 0.65)) * top.depth))
+    u = float(rng.uniform(-0.15, 0.15)) * (top.width - w)
+    v = -top.depth / 2 + 0.04 + d / 2
+    return u - w / 2, v - d / 2, u + w / 2, v + d / 2
+
+
+def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.3) -> Dressing:
+    """Clutter on one work surface around a free stage area. ``density`` scales every count (0:
+    nothing); ``board`` is the chance of a marker board lying on the stage area."""
+    stage = stage_area(top, rng)
+    if density <= 0:
+        return Dressing(stage=stage)
+    layout = _Layout(top, rng, stage)
+    dr = _Dresser(top, rng, Path(cache), prefix, layout)
+    dr.out.stage = stage
+    _flat_layer(dr, stage, density, board)
+    _back_row(dr, stage, density)
+    _sides(dr, stage, density)
+    for _ in range(int(round(density * rng.uniform(0, 2)))):
+        dr.cable(float(rng.uniform(-top.width / 2, top.width / 2)), float(rng.uniform(stage[3], top.depth / 2)), top.z)
+    return dr.out
+
+
+def _count(rng, lo: float, hi: float, density: float) -> int:
+    return int(round(density * float(rng.uniform(lo, hi))))
+
+
+def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
+    """Pages and magazines anywhere on the top, and sometimes a marker board under the stage."""
+    top, rng = dr.top, dr.rng
+    if rng.random() < board:
+        w = min(stage[2] - stage[0] + 0.1, 0.6)
+        dr.flat("board", w, w / printed.SIZES["board"][0] * printed.SIZES["board"][1], (stage[0] + stage[2]) / 2,
+                (stage[1] + stage[3]) / 2, float(rng.uniform(-15, 15)), 0.0008)
+    for _ in range(_count(rng, 3, 9, density)):
+        kind = "page" if rng.random() < 0.6 else "magazine"
+        w, d = (0.21, 0.297) if kind == "page" else (0.21, 0.28)
+        u = float(rng.uniform(-top.width / 2 + 0.12, top.width / 2 - 0.12))
+        v = float(rng.uniform(-top.depth / 2 + 0.12, top.depth / 2 - 0.12))
+        dr.flat(kind, w, d, u, v, float(rng.uniform(-40, 40)), PAPER if kind == "page" else 0.0015)
+
+
+def _back_row(dr: _Dresser, stage, density: float) -> None:
+    """Behind the stage area: monitors, a lamp, books, boxes, plants."""
+    top, rng, lay = dr.top, dr.rng, dr.layout
+    back = (-top.width / 2, stage[3], top.width / 2, top.depth / 2)
+    for _ in range(max(1, _count(rng, 0.8, 2.2, density))):
+        spot = lay.place(0.62, 0.2, back)
+        if spot is not None:
+            dr.monitor(spot[0], spot[1], float(rng.uniform(-15, 15)))
+    if rng.random() < min(1.0, 0.7 * density):
+        spot = lay.place(0.2, 0.2, back)
+        if spot is not None:
+            dr.lamp(spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))
+    for _ in range(_count(rng, 1, 3, density)):
+        upright = rng.random() < 0.5
+        spot = lay.place(0.26 if upright else 0.26, 0.3, back)
+        if spot is not None:
+            dr.books(spot[0], spot[1], float(rng.uniform(-10, 10)), upright)
+    for _ in range(_count(rng, 0, 1.6, density)):
+        size = (float(rng.uniform(0.15, 0.35)), float(rng.uniform(0.12, 0.28)), float(rng.uniform(0.08, 0.25)))
+        spot = lay.place(max(size[:2]), max(size[:2]), back)
+        if spot is not None:
+            dr.box(spot[0], spot[1], float(rng.uniform(-20, 20)), size)
+    _catalogue_items(dr, back, ("plant", "device", "drink"), _count(rng, 1, 3, density))
+
+
+def _sides(dr: _Dresser, stage, density: float) -> None:
+    """Left and right of the stage area: keyboard and mouse, mugs, phones, tools, books."""
+    top, rng, lay = dr.top, dr.rng, dr.layout
+    zones = [(-top.width / 2, -top.depth / 2, stage[0], top.depth / 2), (stage[2], -top.depth / 2, top.width / 2, top.depth / 2)]
+    if rng.random() < min(1.0, 0.8 * density):
+        zone = zones[int(rng.integers(2))]
+        spot = lay.place(0.46, 0.16, zone)
+        if spot is not None:
+            yaw = float(rng.uniform(-12, 12))
+            dr.keyboard(spot[0], spot[1], yaw)
+            mspot = lay.place(0.08, 0.1, (spot[0] + 0.2, spot[1] - 0.15, spot[0] + 0.45, spot[1] + 0.15))
+            if mspot is not None:
+                dr.mouse(mspot[0], mspot[1], yaw + float(rng.uniform(-20, 20)))
+    for zone in zones:
+        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant"), _count(rng, 1, 4, density))
+        if rng.random() < 0.4 * density:
+            spot = lay.place(0.26, 0.3, zone)
+            if spot is not None:
+                dr.books(spot[0], spot[1], float(rng.uniform(-25, 25)), upright=False)
+
+
+def _catalogue_items(dr: _Dresser, zone, groups: tuple[str, ...], n: int) -> None:
+    for _ in range(n):
+        pool = items(groups[int(dr.rng.integers(len(groups)))])
+        if not pool:
+            continue
+        item = pool[int(dr.rng.integers(len(pool)))]
+        r = 0.5 * float(np.hypot(item.size[0], item.size[1]))  # any yaw fits in this circle
+        spot = dr.layout.place(2 * r, 2 * r, zone)
+        if spot is not None:
+            dr.catalogue(item, spot[0], spot[1], float(dr.rng.uniform(0, 360)))
+
+
+def floor_items(rng, free_spots, density: float) -> list[tuple[furniture.FurnitureItem, float, float, float]]:
+    """Bins, bags and boxes for the floor: (item, x, y, yaw) at some of ``free_spots`` (x, y)."""
+    pool = items("floor")
+    out = []
+    for x, y in free_spots[: _count(rng, 1, 4, density)]:
+        if pool:
+            out.append((pool[int(rng.integers(len(pool)))], x, y, float(rng.uniform(0, 360))))
+    return out

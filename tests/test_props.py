@@ -1,0 +1,151 @@
+"""Dressed work surfaces (scenes/props.py), the tube primitive, printed matter, focus stages and the
+scene-level clutter density."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specsynth.assets.library import printed
+from specsynth.assets.library.cache import cache_dir
+from specsynth.assets.meshfiles.primitives import catmull_rom, tube
+from specsynth.scenes import load_scene, props
+from specsynth.spec.yamlio import SpecError, load_spec
+
+TOP = props.Top(cx=0.4, cy=-0.3, width=1.6, depth=0.8, yaw=90.0, z=0.74)
+
+
+def _local(top: props.Top, x: float, y: float) -> tuple[float, float]:
+    c, s = math.cos(math.radians(top.yaw)), math.sin(math.radians(top.yaw))
+    dx, dy = x - top.cx, y - top.cy
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_dressed_top_keeps_its_stage_area_free_and_its_flat_matter_thin(seed):
+    d = props.dress(TOP, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5)
+    assert len({m.name for m in d.meshes}) == len(d.meshes) > 10
+    u0, v0, u1, v1 = d.stage
+    assert u1 - u0 >= 0.45 - 1e-9 and v1 - v0 >= 0.32 - 1e-9
+    for m in d.meshes:
+        if isinstance(m.source, str) or m.source.__class__.__name__ == "Tube":
+            continue
+        u, v = _local(TOP, *m.transform.translation[:2])
+        assert abs(u) < TOP.width / 2 and abs(v) < TOP.depth / 2 + 0.02, m.name  # on the top
+        if m.collide:  # nothing stands on the stage area (the stage finder checks the geometry itself)
+            assert not (u0 < u < u1 and v0 < v < v1), m.name
+        if m.name.split("_")[1] in ("page", "magazine", "board"):
+            assert not m.collide and m.source.box[2] <= 0.002
+            assert TOP.z < m.transform.translation[2] < TOP.z + 0.02
+    assert any(m.name.split("_")[1] == "monitor" for m in d.meshes)
+
+
+def test_dressing_is_the_same_for_a_seed_and_empty_at_density_zero():
+    a = props.dress(TOP, np.random.default_rng(3), cache_dir(), "desk00")
+    b = props.dress(TOP, np.random.default_rng(3), cache_dir(), "desk00")
+    assert [m.model_dump() for m in a.meshes] == [m.model_dump() for m in b.meshes] and a.lights == b.lights
+    empty = props.dress(TOP, np.random.default_rng(3), cache_dir(), "desk00", density=0)
+    assert empty.meshes == [] and empty.lights == [] and empty.stage[2] > empty.stage[0]
+
+
+def test_every_printed_kind_draws_the_same_image_twice(tmp_path):
+    for kind, n in printed.VARIANTS.items():
+        a = printed.printed.__wrapped__(tmp_path / "a", kind, n - 1)
+        b = printed.printed.__wrapped__(tmp_path / "b", kind, n - 1)
+        assert a.path.read_bytes() == b.path.read_bytes(), kind
+        assert a.aspect == pytest.approx(printed.SIZES[kind][0] / printed.SIZES[kind][1])
+        assert all({"asset", "licence", "source"} <= set(c) for c in a.credits)
+    with pytest.raises(printed.PrintedError, match="no printed kind"):
+        printed.printed(tmp_path, "postcard", 0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 7), st.floats(0.001, 0.02))
+def test_a_tube_is_a_closed_solid_of_its_radius_along_its_curve(seed, n, radius):
+    pts = np.cumsum(np.random.default_rng(seed).uniform(0.05, 0.2, (n, 3)) * [1, 1, 0.3], axis=0)
+    m = tube(pts, radius)
+    t = trimesh.Trimesh(m.vertices, m.faces, process=True)
+    assert t.is_watertight and t.is_winding_consistent and t.volume > 0
+    curve = catmull_rom(pts, 8)
+    length = np.linalg.norm(np.diff(curve, axis=0), axis=1).sum()
+    # a polygon of 10 sides has 0.935 of the circle's area; bends make the ends of segments overlap
+    assert t.volume == pytest.approx(0.935 * math.pi * radius**2 * length, rel=0.15)
+    np.testing.assert_allclose(curve[0], pts[0]) and np.testing.assert_allclose(curve[-1], pts[-1])
+
+
+def test_the_office_desk_room_drops_objects_on_its_desks():
+    scene = load_scene("office_desk", Path("."))
+    focus = [s for s in scene.stages.values() if s.focus]
+    assert focus and sum(s.weight for s in focus) == pytest.approx(0.8 * sum(s.weight for s in scene.stages.values()))
+    assert all(0.6 < s.height < 1.0 for s in focus)
+    only = load_scene(_ref("office_desk", ["focus"]), Path("."))
+    assert sorted(only.stages) == sorted(s.name for s in focus)
+
+
+def _ref(name: str, stages):
+    from specsynth.spec.models import SceneRef
+
+    return SceneRef(name=name, stages=stages)
+
+
+def test_clutter_is_refused_for_a_scene_that_is_not_generated(tmp_path):
+    spec = tmp_path / "s.yaml"
+    spec.write_text("version: 1\nname: t\nobjects: {builtin: [duck]}\nscenes:\n  - {name: room, clutter: 2}\n"
+                    "backend: {name: photo}\n")
+    from specsynth.plan.compiler import compile_spec
+
+    with pytest.raises(SpecError) as e:
+        compile_spec(load_spec(spec, []))
+    (pr,) = e.value.problems
+    assert pr.path == "scenes.0.clutter" and pr.line == 5 and "generated rooms" in pr.message
+
+
+def test_the_npm_set_installs_only_its_images(tmp_path):
+    """Normal maps (WebP data URLs) become PNGs, HDRIs plain EXRs; code and other members are left."""
+    import base64
+    import io
+    import tarfile
+
+    import OpenEXR
+    from PIL import Image
+
+    from specsynth.assets.library import pmndrs
+
+    def js(mime: str, data: bytes) -> bytes:
+        return f"export default 'data:{mime};base64,{base64.b64encode(data).decode()}'".encode()
+
+    webp = io.BytesIO()
+    Image.new("RGB", (8, 8), (128, 128, 255)).save(webp, format="WEBP")
+    exr = tmp_path / "sky.exr"
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"RGB": np.full((4, 8, 3), 0.5, np.float32)}) as f:
+        f.write(str(exr))
+    tgz = tmp_path / "p.tgz"
+    with tarfile.open(tgz, "w:gz") as tar:
+        for name, data in (("package/normals/0011.webp.js", js("image/webp", webp.getvalue())),
+                           ("package/hdri/lab.exr.js", js("application/exr", exr.read_bytes())),
+                           ("package/index.js", b"require('child_process')"),
+                           ("package/normals/../../evil.webp.js", js("image/webp", webp.getvalue()))):
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    dest = pmndrs.install_from_tarball(tgz, tmp_path / "cache")
+    files = sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
+    assert files == ["hdri/lab.exr", "manifest.json", "normals/0011.png"]
+    assert [m.name for m in pmndrs.normal_maps(tmp_path / "cache", "wood")] == ["0011"]
+    with Image.open(dest / "normals/0011.png") as im:
+        assert im.format == "PNG" and im.size == (8, 8)
+    assert not list(tmp_path.rglob("evil*"))
+
+
+def test_the_installed_npm_set_has_its_normal_maps_and_hdris():
+    from specsynth.assets.library import pmndrs
+
+    assert len(pmndrs.normal_maps(cache_dir())) == len(pmndrs.KINDS)
+    assert all(pmndrs.hdri(cache_dir(), n) for n in pmndrs.INDOOR_HDRIS + pmndrs.OUTDOOR_HDRIS)
