@@ -179,3 +179,17 @@ def test_catalogue_distractors_drop_render_and_are_credited(tmp_path):
         compile_spec(load_spec(f))
     (pr,) = e.value.problems
     assert pr.path == "arrangements.distractors.objects.0" and "teapott" in pr.message
+
+
+def test_a_distractor_drawn_twice_is_dropped_twice_by_a_cold_worker(tmp_path):
+    """The same model twice in one arrangement: a fresh worker (nothing cached) resolves it once
+    and drops it twice, so the dataset does not depend on which worker ran the job."""
+    f = tmp_path / "dr.yaml"
+    f.write_text(SPEC)
+    g = compile_spec(load_spec(f))
+    worker = Worker(BuildContext(spec=g.spec, spec_dir=f.parent, out=tmp_path / "out"))
+    try:
+        assets = worker.distractor_assets(["teddy", "random_urdfs/007", "teddy"])
+        assert [a.name for a in assets] == ["teddy", "random_urdfs/007", "teddy"] and assets[0] is assets[2]
+    finally:
+        worker.close()

@@ -193,7 +193,9 @@ class Worker:
                      for k, d in enumerate(placed))
 
     def distractor_assets(self, names: list[str]) -> list[ObjectAsset]:
-        missing = [n for n in names if n not in self._distractors]
+        """The assets of the drawn distractors, in order; a name drawn twice is one asset twice
+        (resolved once: resolving a list that names a model twice is refused)."""
+        missing = list(dict.fromkeys(n for n in names if n not in self._distractors))
         if missing:
             from ..spec.models import Objects
 
