@@ -473,6 +473,7 @@ def _fit_probe(args, edits, log) -> list:
     arrangements = max(1, -(-args.probe_images // 4))
     sets = [f"{e.field}={json.dumps(e.value)}" for e in edits] + [
         f"arrangements.count={arrangements}", "cameras.per_arrangement=4", "sensor.exposure=[0, 0]",
+        "sensor.contrast=1", "sensor.saturation=1",
         "sensor.blur=null", "sensor.shot_noise=0", "sensor.read_noise=0", "outputs.image_format=png"]
     loaded = load_spec(args.spec, sets)
     graph = compile_spec(loaded)

@@ -38,17 +38,21 @@ def _stats_of(images: list[np.ndarray]) -> Collected:
 
 
 def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
-    """Real photographs through a known camera (+1.5 stops, a 1.2 px blur, shot noise 0.02) are the
-    'real' side; the photographs themselves are the probe. The fit finds that camera again."""
+    """Real photographs through a known camera (+1.5 stops, a 1.2 px blur, shot noise 0.02,
+    saturation 1.3, tone curve 1.4) are the 'real' side; the photographs themselves are the probe.
+    The fit finds that camera again."""
+    from specsynth.views.sensor import process
+
     rng = np.random.default_rng(3)
     made = []
     for im in real_photos:
         x = gaussian_filter(srgb8_to_linear(im) * 2.0 ** 1.5, sigma=(1.2, 1.2, 0), mode="mirror")
-        made.append(linear_to_srgb8(np.clip(x + 0.02 * np.sqrt(x) * rng.standard_normal(x.shape), 0, None)
-                                    .astype(np.float32)))
+        made.append(process(np.clip(x + 0.02 * np.sqrt(x) * rng.standard_normal(x.shape), 0, None), 1.3, 1.4))
     edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), real_photos, "test", "png", seed=1)}
     lo, hi = edits["sensor.exposure"].value
     assert 1.3 < (lo + hi) / 2 < 1.7
+    assert 1.25 < edits["sensor.contrast"].value < 1.55
+    assert 1.15 < edits["sensor.saturation"].value < 1.45
     blur_lo, blur_hi = edits["sensor.blur"].value
     assert 0.9 < (blur_lo + blur_hi) / 2 < 1.5
     assert 0.012 < edits["sensor.shot_noise"].value < 0.028
@@ -61,6 +65,7 @@ def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise
     assert edits["sensor.blur"].value is None and edits["sensor.shot_noise"].value == 0.0
     lo, hi = edits["sensor.exposure"].value
     assert abs((lo + hi) / 2) < 0.1
+    assert edits["sensor.contrast"].value < 1.05 and abs(edits["sensor.saturation"].value - 1.0) < 0.05
     assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
 
 
@@ -76,7 +81,7 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
     fitted = load_spec(out, []).spec.model_dump(mode="json")
     original = load_spec(spec, []).spec.model_dump(mode="json")
     edited = {"cameras": {"distance", "elevation", "inplane"}, "visibility": {"threshold"},
-              "sensor": {"exposure", "blur", "shot_noise"}, "outputs": {"image_format"}}
+              "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation"}, "outputs": {"image_format"}}
     for section, value in original.items():
         keep = {k: v for k, v in value.items() if k not in edited.get(section, ())} if isinstance(value, dict) else value
         got = {k: v for k, v in fitted[section].items() if k not in edited.get(section, ())} if isinstance(value, dict) \

@@ -228,3 +228,38 @@ def test_auto_exposure_meters_to_middle_grey(scale, seed):
     else:
         assert g in AE_RANGE
     assert exposure_gain(np.zeros((4, 4, 3))) == 1.0
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(0.5, 4.0), st.lists(st.floats(0.0, 1.0), min_size=2, max_size=50))
+def test_the_tone_curve_is_a_symmetric_s_of_slope_k_at_mid_grey(k, vs):
+    from specsynth.views.sensor import tone_curve
+
+    v = np.sort(np.array(vs))
+    out = tone_curve(v, k)
+    assert np.all(np.diff(out) >= -1e-12)  # monotonic
+    np.testing.assert_allclose(tone_curve(np.array([0.0, 0.5, 1.0]), k), [0.0, 0.5, 1.0], atol=1e-12)
+    np.testing.assert_allclose(tone_curve(1.0 - v, k), 1.0 - out, atol=1e-9)
+    h = 1e-6
+    assert (tone_curve(np.array([0.5 + h]), k)[0] - tone_curve(np.array([0.5 - h]), k)[0]) / (2 * h) == pytest.approx(k, rel=1e-4)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(0.0, 3.0), st.integers(0, 2**32 - 1))
+def test_saturation_keeps_luminance_and_scales_chroma(factor, seed):
+    from specsynth.views.sensor import REC709_LUMA, saturate
+
+    x = np.random.default_rng(seed).uniform(0.28, 0.32, (16, 3))  # chroma x 3 stays above 0: nothing clips
+    y = saturate(x, factor)
+    np.testing.assert_allclose(y @ REC709_LUMA, x @ REC709_LUMA, atol=1e-12)
+    lum = (x @ REC709_LUMA)[:, None]
+    np.testing.assert_allclose(y - lum, factor * (x - lum), atol=1e-12)
+
+
+def test_the_camera_processing_is_the_plain_encoding_when_neutral():
+    from specsynth.model.colour import linear_to_srgb8
+    from specsynth.views.sensor import process
+
+    x = np.random.default_rng(0).uniform(0, 1.2, (8, 8, 3)).astype(np.float32)
+    np.testing.assert_array_equal(process(x), linear_to_srgb8(x))
+    assert process(x, 1.0, 1.5).std() > process(x).std()  # more contrast spreads the values

@@ -3,28 +3,29 @@
 Geometry comes from the real split alone: the camera's distance and elevation ranges are the 5th
 to 95th percentiles over the real images of the object nearest each image's centre (the one a
 specsynth camera would have aimed at), the in-plane range the images' own, and the visibility
-threshold the 10th percentile of every real instance's visible fraction. The sensor (exposure, blur, noise, image format) is fitted to a
-*probe*: a few images of the spec rendered as it is, which the sensor's own operations (linear
-exposure, Gaussian blur, shot noise, then the 8-bit encoding) are applied to offline until the
-probe's brightness, sharpness and noise medians are the real ones; the numbers found are what the
-sensor block then applies to every rendered image. Every edit carries the real statistic behind
+threshold the 10th percentile of every real instance's visible fraction. The sensor (exposure, tone
+curve, saturation, blur, noise, image format) is fitted to a *probe*: a few images of the spec
+rendered with a neutral sensor, which the sensor's own operations (``Camera.develop``: those of
+``views.sensor``) are applied to offline until the probe's brightness, contrast, saturation,
+sharpness and noise medians are the real ones; the numbers found are what the sensor block then
+applies to every rendered image. Every edit carries the real statistic behind
 it, which the fitted YAML shows as a comment.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from .collect import Collected
 from .distance import summary
-from .imagestats import luma, noise_level, sharpness, srgb8_to_linear
+from .imagestats import half_rgb8, luma, noise_level, percentiles, saturation, sharpness, srgb8_to_linear
 
 VISIB_QUANTILE = 10
-SEARCH_STEPS = 18  # bisection steps: 2^-18 of each range
+SEARCH_STEPS = 12  # bisection steps: 2^-12 of each range (0.0024 stops of exposure)
 # A probe within 1 % of the real sharpness is not blurred: the 8-bit round trip of the exposure
 # search alone moves the statistic by a few tenths of a percent.
 SHARPNESS_TOLERANCE = 0.01
@@ -86,10 +87,26 @@ def geometry_edits(real: Collected, source: str) -> list[Edit]:
 # ---------------------------------------------------------------------- the sensor, on a probe
 
 
-def _encode(x: np.ndarray) -> np.ndarray:
-    from ..model.colour import linear_to_srgb8
+@dataclass
+class Camera:
+    """The sensor settings a fit searches, applied to a probe as ``views.sensor`` applies them:
+    exposure, blur, shot noise in linear light, then saturation, the sRGB encoding and the tone curve."""
 
-    return linear_to_srgb8(np.clip(x, 0.0, None).astype(np.float32))
+    stops: float = 0.0
+    contrast: float = 1.0
+    saturation: float = 1.0
+    sigma: float = 0.0
+    shot: float = 0.0
+
+    def develop(self, x: np.ndarray, normal: np.ndarray | None = None) -> np.ndarray:
+        from ..views.sensor import blur, process
+
+        y = x * 2.0 ** self.stops
+        if self.sigma > 0:
+            y = blur(y, self.sigma)
+        if self.shot > 0 and normal is not None:
+            y = y + self.shot * np.sqrt(np.maximum(y, 0.0)) * normal
+        return process(np.clip(y, 0.0, None), self.saturation, self.contrast)
 
 
 def _median(values) -> float:
@@ -114,50 +131,69 @@ def _bisect(f, lo: float, hi: float, target: float, increasing: bool) -> float:
     return 0.5 * (lo + hi)
 
 
-def _luma_mean(x: np.ndarray) -> float:
-    return float(luma(_encode(x)).mean())
+def _stat(name: str, rgb8: np.ndarray) -> float:
+    y_half = luma(half_rgb8(rgb8))
+    if name == "brightness":
+        return float(y_half.mean())
+    if name == "contrast":
+        p5, p95 = percentiles(y_half, (5, 95))
+        return p95 - p5
+    if name == "saturation":
+        return saturation(half_rgb8(rgb8).astype(np.float32) / np.float32(255.0))
+    if name == "sharpness":
+        return sharpness(luma(rgb8))
+    return noise_level(luma(rgb8))
+
+
+def _search(lin, cam: Camera, field: str, stat: str, lo: float, hi: float, target: float, increasing: bool,
+            normals=None) -> float:
+    """The value of ``field`` within [lo, hi] that brings the probe's median ``stat`` to ``target``."""
+    def median_at(v: float) -> float:
+        c = replace(cam, **{field: v})
+        return _median([_stat(stat, c.develop(x, n)) for x, n in zip(lin, normals or [None] * len(lin))])
+    return _bisect(median_at, lo, hi, target, increasing)
 
 
 def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, real_format: str | None,
                  seed: int = 0) -> list[Edit]:
-    """Exposure, blur and shot noise that bring the probe's medians to the real ones, in that order
-    (each search holds the ones before it), and the real images' format."""
-    from ..views.sensor import blur
-
+    """Exposure and tone curve (searched in turn, twice: each moves the other's statistic), colour
+    saturation, blur and shot noise that bring the probe's medians to the real ones, and the real
+    images' format."""
     lin = [srgb8_to_linear(p) for p in probe_rgb8]
-    out: list[Edit] = []
-    target_b = _median(real.images["brightness"])
-    stops = _bisect(lambda e: _median([_luma_mean(x * 2.0 ** e) for x in lin]), -5.0, 5.0, target_b, True)
-    exposed = [x * 2.0 ** stops for x in lin]
+    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "noise")}
+    normals = [np.random.default_rng([seed, k]).standard_normal(x.shape) for k, x in enumerate(lin)]
+    cam = Camera()
+    for _ in range(2):  # each setting moves the others' statistics a little: a second pass settles them
+        for _ in range(2):
+            cam.stops = _search(lin, cam, "stops", "brightness", -5.0, 5.0, t["brightness"], True, normals)
+            cam.contrast = _search(lin, cam, "contrast", "contrast", 1.0, 3.0, t["contrast"], True, normals)
+        cam.saturation = _search(lin, cam, "saturation", "saturation", 0.5, 2.5, t["saturation"], True, normals)
+        probe_s = _median([_stat("sharpness", replace(cam, sigma=0.0).develop(x, n)) for x, n in zip(lin, normals)])
+        cam.sigma = 0.0
+        if probe_s > t["sharpness"] * (1.0 + SHARPNESS_TOLERANCE):
+            cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
+        probe_n = _median([_stat("noise", replace(cam, shot=0.0).develop(x)) for x in lin])
+        cam.shot = _search(lin, cam, "shot", "noise", 0.0, 0.2, t["noise"], True, normals) if probe_n < t["noise"] else 0.0
+    return _edits(real, lin, cam, probe_s, probe_n, t, real_format)
+
+
+def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t: dict, real_format) -> list[Edit]:
     real_b = summary(real.images["brightness"])
-    width = _stops_spread(real_b) - _stops_spread(summary([_luma_mean(x) for x in exposed]))
+    width = _stops_spread(real_b) - _stops_spread(summary([_stat("brightness", cam.develop(x)) for x in lin]))
     half = round(max(0.0, width) / 2.0, 2)
-    ex = [round(max(-5.0, stops - half), 2), round(min(5.0, stops + half), 2)]
-    out.append(Edit("sensor.exposure", ex, f"fit: real brightness median {target_b:.3f} (5-95 % {real_b['p5']:.2f}-"
-                                           f"{real_b['p95']:.2f}); the probe needs {stops:+.2f} stops"))
-    target_s = _median(real.images["sharpness"])
-    probe_s = _median([sharpness(luma(_encode(x))) for x in exposed])
-    sigma = 0.0
-    if probe_s > target_s * (1.0 + SHARPNESS_TOLERANCE):
-        sigma = _bisect(lambda s: _median([sharpness(luma(_encode(blur(x, s)))) for x in exposed]), 0.0, 4.0,
-                        target_s, False)
-    sigma = round(sigma, 2)
-    blurred = [blur(x, sigma) for x in exposed]
-    out.append(Edit("sensor.blur", [round(0.75 * sigma, 2), round(1.25 * sigma, 2)] if sigma > 0 else None,
-                    f"fit: real edge sharpness median {target_s:.3f}, the probe's {probe_s:.3f}: "
-                    f"{'a blur of ' + format(sigma, '.2f') + ' px' if sigma else 'no blur'}"))
-    target_n = _median(real.images["noise"])
-    rng = np.random.default_rng(seed)
-    normals = [rng.standard_normal(x.shape) for x in blurred]
-
-    def noise_with(k: float) -> float:
-        return _median([noise_level(luma(_encode(x + k * np.sqrt(np.maximum(x, 0.0)) * n)))
-                        for x, n in zip(blurred, normals)])
-
-    probe_n = noise_with(0.0)
-    shot = _bisect(noise_with, 0.0, 0.2, target_n, True) if probe_n < target_n else 0.0
-    out.append(Edit("sensor.shot_noise", round(shot, 4),
-                    f"fit: real noise median {target_n:.2f} levels, the probe's {probe_n:.2f}"))
+    sigma = round(cam.sigma, 2)
+    out = [
+        Edit("sensor.exposure", [round(max(-5.0, cam.stops - half), 2), round(min(5.0, cam.stops + half), 2)],
+             f"fit: real brightness median {t['brightness']:.3f} (5-95 % {real_b['p5']:.2f}-{real_b['p95']:.2f}); "
+             f"the probe needs {cam.stops:+.2f} stops"),
+        Edit("sensor.contrast", round(cam.contrast, 2), f"fit: real luma range (5-95 %) median {t['contrast']:.3f}"),
+        Edit("sensor.saturation", round(cam.saturation, 2), f"fit: real saturation median {t['saturation']:.3f}"),
+        Edit("sensor.blur", [round(0.75 * sigma, 2), round(1.25 * sigma, 2)] if sigma > 0 else None,
+             f"fit: real edge sharpness median {t['sharpness']:.3f}, the probe's {probe_s:.3f}: "
+             f"{'a blur of ' + format(sigma, '.2f') + ' px' if sigma else 'no blur'}"),
+        Edit("sensor.shot_noise", round(cam.shot, 4),
+             f"fit: real noise median {t['noise']:.2f} levels, the probe's {probe_n:.2f}"),
+    ]
     if real_format == "png":
         out.append(Edit("outputs.image_format", "png", "fit: the real images are PNG (lossless)"))
     return out

@@ -586,6 +586,13 @@ class Sensor(Strict):
         None, description="Optical softness (lens, anti-aliasing filter, demosaicking): a Gaussian blur of sigma "
         "pixels, drawn per image in this range, applied to the linear image before noise. `specsynth fit` sets it "
         "from real photographs' edge sharpness.")
+    saturation: float = Field(1.0, ge=0.0, le=3.0, description="Colour saturation of the camera's processing: each "
+                              "pixel's linear colour moved from its luminance by this factor (1: as rendered), after "
+                              "noise. `specsynth fit` sets it from real photographs.")
+    contrast: float = Field(1.0, ge=0.5, le=4.0, description="The camera's tone curve, applied to the sRGB-encoded "
+                            "image: the S-curve v^k / (v^k + (1 - v)^k) with k = contrast (1: none), which darkens "
+                            "shadows and brightens highlights around mid-grey as a camera's image processor does. "
+                            "`specsynth fit` sets it from real photographs.")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")
     depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
@@ -600,7 +607,8 @@ class Sensor(Strict):
     @property
     def affects_rgb(self) -> bool:
         return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance
-                    or self.auto_white_balance or self.auto_exposure or (self.blur and self.blur[1] > 0))
+                    or self.auto_white_balance or self.auto_exposure or (self.blur and self.blur[1] > 0)
+                    or self.saturation != 1.0 or self.contrast != 1.0)
 
 
 # --------------------------------------------------------------------------- outputs

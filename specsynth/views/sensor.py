@@ -4,7 +4,8 @@ RGB: auto white balance divides out the colour of the light in view (the render 
 albedo: what a camera's AWB estimates, here known exactly) and auto exposure meters the image to
 middle grey; then exposure and white-balance errors scale the linear radiance, the optics blur it,
 then shot noise (std proportional to the square root of the signal) and read noise (constant std) are added, all
-in linear units before the sRGB encoding, as in a real camera's raw pipeline. Depth: a structured-
+in linear units, as in a real camera's raw pipeline; the camera's processing then sets the colour
+saturation, encodes sRGB and applies its tone curve. Depth: a structured-
 light sensor's errors on a copy of the exact depth (axial noise growing with z², holes at depth
 jumps, random dropout, quantisation). Every draw comes from the generator passed in, which the
 caller seeds from the render job: the same job gives the same noise on every machine.
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.colour import kelvin_rgb, linear_to_srgb8, srgb_to_linear
+from ..model.colour import kelvin_rgb, linear_to_srgb, linear_to_srgb8, srgb_to_linear
 from ..spec.models import DepthSensor, Sensor
 
 REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -75,7 +76,34 @@ def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng:
         x = blur(x, float(rng.uniform(*sensor.blur)))
     noise_std = np.sqrt(sensor.shot_noise ** 2 * x + sensor.read_noise ** 2)
     x = x + noise_std * noise
-    return linear_to_srgb8(np.clip(x, 0.0, None).astype(np.float32))
+    return process(np.clip(x, 0.0, None), sensor.saturation, sensor.contrast)
+
+
+def saturate(x: np.ndarray, factor: float) -> np.ndarray:
+    """Each linear colour moved from its luminance by ``factor`` (1: unchanged), never below 0."""
+    if factor == 1.0:
+        return x
+    y = (np.asarray(x) @ REC709_LUMA)[..., None]
+    return np.clip(y + factor * (x - y), 0.0, None)
+
+
+def tone_curve(v: np.ndarray, k: float) -> np.ndarray:
+    """The S-curve v^k / (v^k + (1 - v)^k) on encoded values in [0, 1]: 0, 1/2 and 1 stay, the
+    slope at 1/2 is k (1: the identity)."""
+    if k == 1.0:
+        return v
+    a = np.power(np.clip(v, 0.0, 1.0), k)
+    return a / (a + np.power(np.clip(1.0 - v, 0.0, 1.0), k))
+
+
+def process(linear: np.ndarray, saturation: float = 1.0, contrast: float = 1.0) -> np.ndarray:
+    """The camera's processing of a linear image -> its 8-bit sRGB: saturation in linear light, the
+    sRGB encoding, then the tone curve on the encoded values."""
+    x = saturate(np.asarray(linear, np.float64), saturation)
+    if contrast == 1.0:
+        return linear_to_srgb8(x.astype(np.float32))
+    v = tone_curve(linear_to_srgb(x.astype(np.float32)).astype(np.float64), contrast)
+    return np.round(v * 255.0).astype(np.uint8)
 
 
 def blur(x: np.ndarray, sigma: float) -> np.ndarray:
