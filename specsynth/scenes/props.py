@@ -252,9 +252,9 @@ def stage_area(top: Top, rng) -> tuple[float, float, float, float]:
     return u - w / 2, v - d / 2, u + w / 2, v + d / 2
 
 
-def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.3) -> Dressing:
+def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.35) -> Dressing:
     """Clutter on one work surface around a free stage area. ``density`` scales every count (0:
-    nothing); ``board`` is the chance of a marker board lying on the stage area."""
+    nothing); ``board`` x ``density`` is the chance of a marker board lying on the stage area."""
     stage = stage_area(top, rng)
     if density <= 0:
         return Dressing(stage=stage)
@@ -274,17 +274,18 @@ def _count(rng, lo: float, hi: float, density: float) -> int:
 
 
 def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
-    """Pages and magazines anywhere on the top, and sometimes a marker board under the stage."""
+    """Pages and magazines all over the top, half of them on or over the stage area (objects stand
+    on paper on real desks), and sometimes a marker board under the stage."""
     top, rng = dr.top, dr.rng
-    if rng.random() < board:
-        w = min(stage[2] - stage[0] + 0.1, 0.6)
+    if rng.random() < min(0.9, board * density):  # as big as LM-O's, around the objects
+        w = float(rng.uniform(0.55, 0.8))
         dr.flat("board", w, w / printed.SIZES["board"][0] * printed.SIZES["board"][1], (stage[0] + stage[2]) / 2,
                 (stage[1] + stage[3]) / 2, float(rng.uniform(-15, 15)), 0.0008)
-    for _ in range(_count(rng, 3, 9, density)):
-        kind = "page" if rng.random() < 0.6 else "magazine"
+    for k in range(_count(rng, 4, 10, density)):
+        kind = "page" if rng.random() < 0.55 else "magazine"
         w, d = (0.21, 0.297) if kind == "page" else (0.21, 0.28)
-        u = float(rng.uniform(-top.width / 2 + 0.12, top.width / 2 - 0.12))
-        v = float(rng.uniform(-top.depth / 2 + 0.12, top.depth / 2 - 0.12))
+        area = stage if k % 2 else (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
+        u, v = float(rng.uniform(area[0], area[2])), float(rng.uniform(area[1], area[3]))
         dr.flat(kind, w, d, u, v, float(rng.uniform(-40, 40)), PAPER if kind == "page" else 0.0015)
 
 
@@ -327,7 +328,7 @@ def _sides(dr: _Dresser, stage, density: float) -> None:
             if mspot is not None:
                 dr.mouse(mspot[0], mspot[1], yaw + float(rng.uniform(-20, 20)))
     for zone in zones:
-        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant"), _count(rng, 1, 4, density))
+        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant"), _count(rng, 2, 5, density))
         if rng.random() < 0.4 * density:
             spot = lay.place(0.26, 0.3, zone)
             if spot is not None:

@@ -73,6 +73,7 @@ OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
           (0.95, 0.85, 0.5), (0.7, 0.7, 0.72), (0.85, 0.66, 0.8), (0.45, 0.6, 0.7))
+CARPETS = ((0.12, 0.14, 0.18), (0.2, 0.2, 0.22), (0.16, 0.2, 0.28), (0.25, 0.22, 0.2), (0.1, 0.1, 0.11))
 DYES = ((0.6, 0.12, 0.1), (0.1, 0.25, 0.55), (0.15, 0.4, 0.2), (0.55, 0.45, 0.1), (0.4, 0.15, 0.45),
         (0.08, 0.35, 0.4), (0.5, 0.3, 0.2), (0.7, 0.55, 0.4))
 WALL = 0.1  # wall thickness, metres
@@ -434,14 +435,22 @@ def _tint(rng, spread: float = 0.06, level: tuple[float, float] = (0.85, 1.0)) -
     return tuple(float(np.clip(base * (1.0 + rng.uniform(-spread, spread)), 0.0, 1.0)) for _ in range(3))
 
 
-def _shell(rng, W: float, D: float, H: float, window, cache: Path, library) -> tuple[list[SceneMesh], list[dict]]:
-    """Floor, ceiling and walls (textured, with relief), and a rug in half the rooms."""
+def _shell(rng, W: float, D: float, H: float, window, cache: Path, library,
+           carpet: bool = False) -> tuple[list[SceneMesh], list[dict]]:
+    """Floor, ceiling and walls (textured, with relief; offices and labs may have a carpet), and a rug
+    in half the rooms."""
     felt = next((t for t in library if t.kind == "fabric"), None)
     floor_t = _tex(rng, [t for t in library if t.kind == "floor"], "floor")
     wall_t = _tex(rng, [t for t in library if t.kind == "wall"], "wall")
     floor_kind = "tiles" if "tile" in floor_t.name and "wood" not in floor_t.name else "wood"
-    floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, base_color=_tint(rng),
-                              roughness=float(rng.uniform(0.4, 0.75)), **_relief(rng, cache, floor_kind, (0.15, 0.5)))
+    if carpet and felt is not None and rng.random() < 0.5:  # offices: dark carpet tiles as often as not
+        floor_t = felt
+        floor_mat = SceneMaterial(texture=str(felt.path), uv_scale=1.0 / felt.tile, roughness=0.95, specular=0.2,
+                                  base_color=CARPETS[int(rng.integers(len(CARPETS)))],
+                                  **_relief(rng, cache, "fabric", (0.3, 0.8)))
+    else:
+        floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, base_color=_tint(rng),
+                                  roughness=float(rng.uniform(0.4, 0.75)), **_relief(rng, cache, floor_kind, (0.15, 0.5)))
     paint = PAINTS[int(rng.integers(len(PAINTS)))]
     wall_mat = SceneMaterial(texture=str(wall_t.path), base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85,
                              specular=0.3, **_relief(rng, cache, "stone" if "brick" in wall_t.name else "wall", (0.1, 0.4)))
@@ -452,7 +461,7 @@ def _shell(rng, W: float, D: float, H: float, window, cache: Path, library) -> t
         *_walls(W, D, H, window, wall_mat),
     ]
     rug = _rug(rng, W, D, felt)
-    return meshes + rug, [floor_t.credit, wall_t.credit] + ([felt.credit] if rug else [])
+    return meshes + rug, list({c["asset"]: c for c in [floor_t.credit, wall_t.credit] + ([felt.credit] if rug else [])}.values())
 
 
 def _furniture_meshes(rng, placed: list[Placed], cache: Path, library) -> tuple[list[SceneMesh], list[dict]]:
@@ -475,9 +484,13 @@ def _lights(rng, W: float, D: float, H: float, window, placed, small, params: Ro
     colour = kelvin_rgb(float(rng.uniform(3500, 6500)))
     total = float(rng.uniform(80, 240))
     size = (1.2, 0.3) if rng.random() < 0.6 else (0.6, 0.6)
-    lights = [LightDef(kind="area", power=total / n, size=size, color=colour,
-                       translation=(float((k + 0.5) / n * W - W / 2 + rng.uniform(-0.2, 0.2)),
-                                    float(rng.uniform(-D / 4, D / 4)), H - 0.02)) for k in range(n)]
+    spots = [(float((k + 0.5) / n * W - W / 2 + rng.uniform(-0.2, 0.2)), float(rng.uniform(-D / 4, D / 4)))
+             for k in range(n)]
+    desk = next((p for p in placed if is_worktop(p.item)), None)
+    if desk is not None:  # offices hang a panel over the desk: its top is the brightest place in the room
+        spots[0] = (desk.x, desk.y - (0.3 if not desk.middle else 0.0))
+    lights = [LightDef(kind="area", power=total / n, size=size, color=colour, translation=(x, y, H - 0.02))
+              for x, y in spots]
     lights += [
         LightDef(kind="point", power=float(rng.uniform(10, 40)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),
@@ -516,7 +529,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     kind = kind or params.kinds[int(rng.integers(len(params.kinds)))]
     W, D, H, window = _room_shape(rng, params)
     library = textures.available(cache)
-    meshes, credits = _shell(rng, W, D, H, window, cache, library)
+    meshes, credits = _shell(rng, W, D, H, window, cache, library, carpet=kind in ("office", "office_desk", "lab"))
     items = _fits(kind_items(kind, params.categories), W, D, H)
     if not items:
         raise furniture.LibraryError(f"no furniture of kind {kind!r} fits a {W:.1f} x {D:.1f} x {H:.1f} m room")

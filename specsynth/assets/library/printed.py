@@ -23,11 +23,11 @@ import numpy as np
 from ...atomic import atomic_write_bytes
 from . import pictures
 
-VERSION = 1
+VERSION = 2  # 2: pages with tables and charts, LM-O-like boards, more variants
 # Variants drawn per kind (a scene picks among them by its seed) and each kind's size in pixels.
-VARIANTS = {"page": 12, "magazine": 10, "board": 4, "cover": 16, "keyboard": 3, "screen": 8, "cardboard": 4,
-            "poster": 6}
-SIZES = {"page": (620, 877), "magazine": (560, 740), "board": (900, 700), "cover": (300, 440),
+VARIANTS = {"page": 24, "magazine": 24, "board": 6, "cover": 24, "keyboard": 3, "screen": 12, "cardboard": 6,
+            "poster": 8}
+SIZES = {"page": (620, 877), "magazine": (560, 740), "board": (980, 700), "cover": (300, 440),
          "keyboard": (880, 290), "screen": (960, 540), "cardboard": (512, 512), "poster": (600, 840)}
 KIND_CODE = {k: i for i, k in enumerate(sorted(VARIANTS))}
 FONT_CREDIT = {"asset": "font:aileron", "name": "Aileron Regular (the font built into Pillow)",
@@ -100,6 +100,7 @@ def _text_block(draw, rng, x0: int, y0: int, x1: int, y1: int, size: int, ink) -
 
 
 def _page(rng, size):
+    """A printed page: a title, text, and often a figure, a table or a chart at the scale of the page."""
     from PIL import Image, ImageDraw
 
     w, h = size
@@ -108,16 +109,36 @@ def _page(rng, size):
     d = ImageDraw.Draw(im)
     m = int(w * 0.1)
     ink = tuple(int(v) for v in rng.integers(10, 60, 3))
-    d.text((m, m), " ".join(_words(rng, 4)).title(), fill=ink, font=_font(int(h * 0.03)))
+    d.text((m, m), " ".join(_words(rng, 4)).title(), fill=ink, font=_font(int(h * 0.035)))
     y = m + int(h * 0.07)
     credits = []
-    if rng.random() < 0.4:  # a figure
-        fh = int(h * rng.uniform(0.15, 0.3))
-        picture, credit = _photograph(rng, (w - 2 * m, fh))
-        im.paste(picture, (m, y))
-        credits.append(credit)
-        y += fh + int(h * 0.03)
-    _text_block(d, rng, m, y, w - m, h - m, int(h * 0.014), ink)
+    while y < h - m - int(h * 0.1):
+        what = rng.choice(["text", "text", "figure", "table", "chart"])
+        bh = int(h * rng.uniform(0.12, 0.25))
+        if what == "figure":
+            picture, credit = _photograph(rng, (w - 2 * m, bh))
+            im.paste(picture, (m, y))
+            credits.append(credit)
+        elif what == "table":
+            rows, cols = int(rng.integers(4, 9)), int(rng.integers(2, 5))
+            for r in range(rows + 1):
+                yy = y + r * bh // rows
+                d.line((m, yy, w - m, yy), fill=ink, width=2 if r in (0, 1, rows) else 1)
+            for c in range(cols):
+                for r in range(rows):
+                    d.text((m + 6 + c * (w - 2 * m) // cols, y + 3 + r * bh // rows), _words(rng, 1)[0],
+                           fill=ink, font=_font(max(9, bh // rows - 8)))
+        elif what == "chart":
+            n = int(rng.integers(4, 10))
+            colour = _colour(rng, 0.4, 0.9)
+            bw = (w - 2 * m) // n
+            for k in range(n):
+                top = y + int(bh * rng.uniform(0.05, 0.9))
+                d.rectangle((m + k * bw + 3, top, m + (k + 1) * bw - 3, y + bh), fill=colour)
+            d.line((m, y + bh, w - m, y + bh), fill=ink, width=2)
+        else:
+            _text_block(d, rng, m, y, w - m, y + bh, int(h * 0.014), ink)
+        y += bh + int(h * 0.03)
     return im, credits
 
 
@@ -145,29 +166,32 @@ def _magazine(rng, size):
 
 
 def _board(rng, size):
-    """A board of square fiducial markers round a free middle, as under the LM-O objects."""
+    """A board of square fiducial markers round a free middle, as under the LM-O objects: 7 x 5
+    cells, each a black square with a white glyph of 3 x 3 random bits."""
     from PIL import Image, ImageDraw
 
     w, h = size
-    im = Image.new("RGB", size, (245, 245, 242))
+    paper = (246, 246, 243)
+    im = Image.new("RGB", size, paper)
     d = ImageDraw.Draw(im)
-    cell = w // 11
-    rows, cols = h // cell, w // cell
+    cols, rows = 7, 5
+    cell = min(w // cols, h // rows)
     ox, oy = (w - cols * cell) // 2, (h - rows * cell) // 2
     for r in range(rows):
         for c in range(cols):
             if 0 < r < rows - 1 and 0 < c < cols - 1:
                 continue  # the markers ring the board; the middle stays white
             x, y = ox + c * cell, oy + r * cell
-            pad = cell // 8
-            d.rectangle((x + pad, y + pad, x + cell - pad, y + cell - pad), fill=(15, 15, 15))
-            bits = rng.random((4, 4)) < 0.5
-            s = (cell - 2 * pad) / 6
-            for i in range(4):
-                for j in range(4):
+            pad = cell // 10
+            d.rectangle((x + pad, y + pad, x + cell - pad, y + cell - pad), fill=(12, 12, 12))
+            bits = rng.random((3, 3)) < 0.5
+            bits[1, 1] = True  # every glyph has its centre, so none is all black
+            s = (cell - 2 * pad) / 5
+            for i in range(3):
+                for j in range(3):
                     if bits[i, j]:
                         d.rectangle((x + pad + (j + 1) * s, y + pad + (i + 1) * s, x + pad + (j + 2) * s - 1,
-                                     y + pad + (i + 2) * s - 1), fill=(245, 245, 242))
+                                     y + pad + (i + 2) * s - 1), fill=paper)
     return im, []
 
 
