@@ -443,8 +443,13 @@ def cmd_fit(args) -> int:
     edits = fit.geometry_edits(real, args.real)
     if args.probe_images:
         probe = _fit_probe(args, edits, log)
-        fmt = {p.rgb.suffix.lower().lstrip(".") for p in real_split.images}
-        edits += fit.sensor_edits(real, probe, args.real, "png" if fmt == {"png"} else None, seed=loaded.spec.seed)
+        fmt = {p.rgb.suffix.lower().lstrip(".") for p in real_split.iter_images()}
+        sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, "png" if fmt == {"png"} else None,
+                                       seed=loaded.spec.seed)
+        edits += sensor
+        if not args.no_object_colours:
+            materials = {k: v.model_dump(exclude_defaults=True) for k, v in loaded.spec.objects.materials.items()}
+            edits += fit.object_edits(real, probe, cam, materials, args.real)
     doc = specedit.load(Path(args.spec).read_text())
     for e in edits:
         specedit.set_field(doc, e.field, e.value, e.comment)
@@ -454,7 +459,8 @@ def cmd_fit(args) -> int:
     for col in ("field", "value", "from"):
         t.add_column(col)
     for e in edits:
-        t.add_row(e.field, str(e.value), e.comment.removeprefix("fit: "))
+        value = e.value.get("color_gain") if isinstance(e.value, dict) else e.value
+        t.add_row(e.field + (".color_gain" if isinstance(e.value, dict) else ""), str(value), e.comment.removeprefix("fit: "))
     Console().print(t)
     if rebased:
         log(f"relative paths rewritten for the new folder: {', '.join(rebased)}")
@@ -482,7 +488,11 @@ def _fit_probe(args, edits, log) -> list:
     s = build(graph, out, jobs=args.jobs or 1, console=None)
     if not s.images:
         raise FileNotFoundError(f"the probe build of {args.spec} wrote no image (see {out / 'failures.json'})")
-    return [np.asarray(Image.open(im.rgb).convert("RGB")) for im in open_split(out).images]
+
+    def masks(im) -> list:
+        return [(inst.obj_id, np.asarray(Image.open(m)) > 0) for inst, m in zip(im.instances, im.mask_visib) if m]
+
+    return [(np.asarray(Image.open(im.rgb).convert("RGB")), masks(im)) for im in open_split(out).iter_images()]
 
 
 def _write_validated(out: Path, text: str) -> None:
@@ -628,6 +638,9 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--probe-images", type=int, default=12,
                    help="views rendered to fit the sensor (exposure, blur, noise); 0: fit the cameras only")
     p.add_argument("--models", help="BOP models folder, when the real split has no masks and no models/ beside it")
+    p.add_argument("--no-object-colours", action="store_true",
+                   help="leave the objects' materials as they are (by default each object shown often enough gets "
+                        "the colour gain that matches its real colour)")
     p.add_argument("--jobs", type=int, default=0, help="processes (default: the cores)")
     p.set_defaults(fn=cmd_fit)
 

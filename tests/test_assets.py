@@ -360,3 +360,18 @@ def test_overlapping_coplanar_faces_keep_a_largest_first_cover(seed, n):
     for d in dropped:
         over = triangles_overlap(np.repeat(t[d : d + 1], len(kept), 0), t[kept])
         assert any(area[k] >= area[d] - 1e-12 for k, o in zip(kept, over) if o)
+
+
+def test_a_colour_gain_multiplies_the_objects_colours(tmp_path):
+    """objects.materials.<id>.color_gain scales the base colour the vertex colours are multiplied by."""
+    from specsynth.assets.resolve import resolve_objects
+    from specsynth.spec.models import Objects
+
+    plain = {a.obj_id: a for a in resolve_objects(Objects(path="dataset:lmo/models"), tmp_path)}
+    gained = {a.obj_id: a for a in resolve_objects(Objects(path="dataset:lmo/models", materials={
+        "9": {"color_gain": [2.0, 1.5, 0.5]}}), tmp_path)}
+    assert plain[9].material.use_vertex_colors and gained[9].material.use_vertex_colors
+    np.testing.assert_allclose(gained[9].material.base_color, np.array(plain[9].material.base_color) * [2.0, 1.5, 0.5])
+    assert gained[1].material == plain[1].material
+    with pytest.raises(ValueError, match="colour gain"):
+        Objects(path="dataset:lmo/models", materials={"9": {"color_gain": [5.0, 1.0, 1.0]}})

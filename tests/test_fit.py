@@ -48,7 +48,7 @@ def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
     for im in real_photos:
         x = gaussian_filter(srgb8_to_linear(im) * 2.0 ** 1.5, sigma=(1.2, 1.2, 0), mode="mirror")
         made.append(process(np.clip(x + 0.02 * np.sqrt(x) * rng.standard_normal(x.shape), 0, None), 1.3, 1.4))
-    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), real_photos, "test", "png", seed=1)}
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), real_photos, "test", "png", seed=1)[0]}
     lo, hi = edits["sensor.exposure"].value
     assert 1.3 < (lo + hi) / 2 < 1.7
     assert 1.25 < edits["sensor.contrast"].value < 1.55
@@ -61,7 +61,7 @@ def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
 
 
 def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise(real_photos):
-    edits = {e.field: e for e in fit.sensor_edits(_stats_of(real_photos), real_photos, "test", None)}
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(real_photos), real_photos, "test", None)[0]}
     assert edits["sensor.blur"].value is None and edits["sensor.shot_noise"].value == 0.0
     lo, hi = edits["sensor.exposure"].value
     assert abs((lo + hi) / 2) < 0.1
@@ -86,6 +86,13 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
         keep = {k: v for k, v in value.items() if k not in edited.get(section, ())} if isinstance(value, dict) else value
         got = {k: v for k, v in fitted[section].items() if k not in edited.get(section, ())} if isinstance(value, dict) \
             else fitted[section]
+        if section == "objects":  # materials gain colour gains; an object without its own entry gets the default's
+            mats, fitted_mats = keep.pop("materials"), got.pop("materials")
+            for key, mat in fitted_mats.items():
+                assert len(mat.pop("color_gain")) == 3
+                expected = dict(mats.get(key, mats["default"]))
+                expected.pop("color_gain")
+                assert mat == expected, key
         assert got == keep, section
     text = out.read_text()
     for line in spec.read_text().splitlines():  # every comment of the original is still there
@@ -120,3 +127,39 @@ def test_fit_refuses_a_folder_as_its_output(tmp_path, capsys):
     assert main(["fit", "dataset:lmo/test", str(ROOT / "specs" / "lmo_bl.yaml"), "-o", str(tmp_path / "out.yaml"),
                  "--probe-images", "0"]) == 2
     assert "not a file" in capsys.readouterr().err
+
+
+def test_an_object_rendered_too_dark_gets_the_colour_gain_that_undoes_it():
+    """40 real LM-O images are both sides: as they are (real) and as the probe, with the duck (obj 9)
+    made half as bright and the glue (obj 11) bluer in linear light. The fit gives them the gains that undo it
+    and leaves the other objects near 1."""
+    from specsynth.compare.gtinfo import complete
+    from specsynth.compare.split import open_split
+
+    from specsynth.compare.imagestats import OBJECT_STATS, object_stats
+
+    split = complete(open_split("dataset:lmo/test"))
+    probe, rows = [], []
+    for im in list(split.iter_images())[::5]:
+        rgb = np.asarray(Image.open(im.rgb).convert("RGB"))
+        masks = [(i.obj_id, np.asarray(Image.open(m)) > 0) for i, m in zip(im.instances, im.mask_visib)]
+        rows += [(obj_id, object_stats(rgb, mask)) for obj_id, mask in masks]
+        x = srgb8_to_linear(rgb)
+        for obj_id, mask in masks:
+            x[mask] *= {9: np.array([0.5, 0.5, 0.5]), 11: np.array([0.8, 0.9, 1.3])}.get(obj_id, 1.0)
+        probe.append((linear_to_srgb8(np.clip(x, 0, 1).astype(np.float32)), masks))
+    rows = [(i, st) for i, st in rows if st is not None]  # the real side: the same images, untouched
+    real = Collected(objects={"obj_id": np.array([i for i, _ in rows]),
+                              **{k: np.array([st[k] for _, st in rows]) for k in OBJECT_STATS}})
+    fitted = fit.object_gains(real, probe, fit.Camera())
+    gains = {i: g for i, (g, _, _) in fitted.items()}
+    np.testing.assert_allclose(gains[9][:2], [2.0, 2.0], rtol=0.12)  # its blue is near 0: only the colour counts
+    after = fit._median_lab(fit._object_colours(probe, fit.Camera(), gains)[9])
+    assert np.linalg.norm(after - fitted[9][1]) < 3.0  # within 3 CIELAB units of the real duck
+    np.testing.assert_allclose(gains[11], [1 / 0.8, 1 / 0.9, 1 / 1.3], rtol=0.12)
+    for obj_id in (1, 5, 6, 8, 10, 12):
+        np.testing.assert_allclose(gains[obj_id], 1.0, atol=0.03)  # 8-bit rounding only
+    edits = fit.object_edits(real, probe, fit.Camera(), {"default": {"specular": 0.3}, "9": {"roughness": 0.2}}, "t")
+    by = {e.field: e.value for e in edits}
+    assert by["objects.materials.9"]["roughness"] == 0.2 and "specular" not in by["objects.materials.9"]
+    assert by["objects.materials.1"]["specular"] == 0.3 and len(by["objects.materials.1"]["color_gain"]) == 3

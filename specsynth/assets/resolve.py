@@ -754,11 +754,12 @@ def _material(src: _Source, meta: dict, overrides: dict[str, spec_mod.Material],
             raise AssetError(f"{src.name}: material texture not found: {tex}")
         check_texture(tex, src.name)
         texture = str(tex)
+    gain = np.asarray(over.color_gain, np.float64)
     if over.color is not None:
-        return MaterialIR(base_color=tuple(over.color), use_vertex_colors=False, texture=None,
-                          roughness=over.roughness, metallic=over.metallic, specular=over.specular)
+        return MaterialIR(base_color=tuple(float(c) for c in np.asarray(over.color) * gain), use_vertex_colors=False,
+                          texture=None, roughness=over.roughness, metallic=over.metallic, specular=over.specular)
     return MaterialIR(
-        base_color=(1.0, 1.0, 1.0) if texture else base.base_color,
+        base_color=tuple(float(c) for c in (np.ones(3) if texture else np.asarray(base.base_color)) * gain),
         use_vertex_colors=over.use_vertex_colors and base.use_vertex_colors and texture is None,
         texture=texture, roughness=over.roughness, metallic=over.metallic, specular=over.specular,
     )

@@ -22,7 +22,8 @@ import numpy as np
 
 from .collect import Collected
 from .distance import summary
-from .imagestats import half_rgb8, luma, noise_level, percentiles, saturation, sharpness, srgb8_to_linear
+from .imagestats import (MIN_OBJECT_PIXELS, half_rgb8, lab_of_linear, linear_of_lab, luma, noise_level, percentiles,
+                         saturation, sharpness, srgb8_to_linear)
 
 VISIB_QUANTILE = 10
 SEARCH_STEPS = 12  # bisection steps: 2^-12 of each range (0.0024 stops of exposure)
@@ -155,10 +156,10 @@ def _search(lin, cam: Camera, field: str, stat: str, lo: float, hi: float, targe
 
 
 def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, real_format: str | None,
-                 seed: int = 0) -> list[Edit]:
+                 seed: int = 0) -> tuple[list[Edit], Camera]:
     """Exposure and tone curve (searched in turn, twice: each moves the other's statistic), colour
     saturation, blur and shot noise that bring the probe's medians to the real ones, and the real
-    images' format."""
+    images' format -> (the edits, the camera found)."""
     lin = [srgb8_to_linear(p) for p in probe_rgb8]
     t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "noise")}
     normals = [np.random.default_rng([seed, k]).standard_normal(x.shape) for k, x in enumerate(lin)]
@@ -174,7 +175,7 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
             cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
         probe_n = _median([_stat("noise", replace(cam, shot=0.0).develop(x)) for x in lin])
         cam.shot = _search(lin, cam, "shot", "noise", 0.0, 0.2, t["noise"], True, normals) if probe_n < t["noise"] else 0.0
-    return _edits(real, lin, cam, probe_s, probe_n, t, real_format)
+    return _edits(real, lin, cam, probe_s, probe_n, t, real_format), cam
 
 
 def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t: dict, real_format) -> list[Edit]:
@@ -196,6 +197,69 @@ def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t:
     ]
     if real_format == "png":
         out.append(Edit("outputs.image_format", "png", "fit: the real images are PNG (lossless)"))
+    return out
+
+
+# ---------------------------------------------------------------------- the objects' colours
+
+OBJECT_STEPS = 4  # multiplicative updates of each object's colour gain
+MIN_INSTANCES = 3  # an object is fitted when the probe and the real split each show it this often
+
+
+def _object_colours(probe, cam: Camera, gains: dict[int, np.ndarray]) -> dict[int, list[np.ndarray]]:
+    """Each object's mean linear colour inside its visible masks, per probe instance, with its gain
+    applied to its rendered pixels and the probe developed through ``cam``."""
+    out: dict[int, list[np.ndarray]] = {}
+    for rgb8, instances in probe:
+        x = srgb8_to_linear(rgb8)
+        for obj_id, mask in instances:
+            x[mask] *= gains.get(obj_id, 1.0)
+        dev = srgb8_to_linear(cam.develop(x))
+        for obj_id, mask in instances:
+            if mask.sum() >= MIN_OBJECT_PIXELS:
+                out.setdefault(obj_id, []).append(dev[mask].mean(0))
+    return out
+
+
+def _median_lab(colours) -> np.ndarray:
+    return np.median(np.array([lab_of_linear(c) for c in colours]), axis=0)
+
+
+def object_gains(real: Collected, probe, cam: Camera) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per object shown often enough on both sides: the colour gain (linear, per channel) that brings
+    its median CIELAB colour in the developed probe to the real one -> {obj_id: (gain, real Lab,
+    probe Lab before)}. The rendered pixels are scaled (a gain on the albedo scales the light the
+    object returns), developed, measured, and the gain updated, ``OBJECT_STEPS`` times."""
+    ids = np.asarray(real.objects["obj_id"])
+    targets = {}
+    for obj_id in sorted(set(ids.tolist())):
+        k = ids == obj_id
+        if k.sum() >= MIN_INSTANCES:
+            targets[obj_id] = np.array([np.median(real.objects[c][k]) for c in ("obj_lightness", "obj_a", "obj_b")])
+    gains = {i: np.ones(3) for i in targets}
+    before = {i: _median_lab(c) for i, c in _object_colours(probe, cam, {}).items() if len(c) >= MIN_INSTANCES}
+    for _ in range(OBJECT_STEPS):
+        seen = _object_colours(probe, cam, gains)
+        for obj_id in targets:
+            if len(seen.get(obj_id, ())) >= MIN_INSTANCES:
+                want, have = linear_of_lab(*targets[obj_id]), linear_of_lab(*_median_lab(seen[obj_id]))
+                # A channel near 0 (a yellow duck's blue) says little and would swing the gain: floored.
+                want, have = (np.maximum(c, 0.03 * max(c.max(), 1e-4)) for c in (want, have))
+                gains[obj_id] = np.clip(gains[obj_id] * (want / have) ** 0.8, 0.25, 4.0)
+    return {i: (gains[i], targets[i], before[i]) for i in targets if i in before}
+
+
+def object_edits(real: Collected, probe, cam: Camera, materials: dict, source: str) -> list[Edit]:
+    """``objects.materials.<obj_id>`` with a fitted ``color_gain``, keeping what the spec gave that
+    object (its own entry, else the default's: the most specific entry is the only one used)."""
+    out = []
+    for obj_id, (gain, want, had) in sorted(object_gains(real, probe, cam).items()):
+        base = materials.get(str(obj_id)) or materials.get("default") or {}
+        entry = {k: v for k, v in base.items() if k != "color_gain"}
+        entry["color_gain"] = [round(float(g), 3) for g in gain]
+        out.append(Edit(f"objects.materials.{obj_id}", entry,
+                        f"fit: real L*a*b* {want[0]:.0f} {want[1]:+.0f} {want[2]:+.0f}, the probe's "
+                        f"{had[0]:.0f} {had[1]:+.0f} {had[2]:+.0f} in {source}"))
     return out
 
 

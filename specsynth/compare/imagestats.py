@@ -202,6 +202,15 @@ def lab_of_linear(rgb_linear) -> tuple[float, float, float]:
     return float(116 * f[1] - 16), float(500 * (f[0] - f[1])), float(200 * (f[1] - f[2]))
 
 
+def linear_of_lab(L: float, a: float, b: float) -> np.ndarray:
+    """The linear sRGB colour of a CIELAB (D65) one: :func:`lab_of_linear` inverted."""
+    fy = (L + 16) / 116
+    f = np.array([fy + a / 500, fy, fy - b / 200])
+    xyz = np.where(f > 6 / 29, f ** 3, 3 * (6 / 29) ** 2 * (f - 4 / 29)) * np.array([0.95047, 1.0, 1.08883])
+    m = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+    return np.linalg.solve(m, xyz)
+
+
 OBJECT_STATS = ("obj_brightness", "obj_lightness", "obj_a", "obj_b")
 MIN_OBJECT_PIXELS = 100
 

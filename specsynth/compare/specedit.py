@@ -74,13 +74,26 @@ def dump(doc: Document) -> str:
 
 
 def _node(value: Any):
-    from ruamel.yaml.comments import CommentedSeq
+    """A value as the spec writes it: lists and mappings on one line (flow style)."""
+    from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
     if isinstance(value, (list, tuple)):
         seq = CommentedSeq([int(v) if isinstance(v, float) and v.is_integer() else v for v in value])
         seq.fa.set_flow_style()
         return seq
+    if isinstance(value, dict):
+        mapping = CommentedMap((k, _node(v)) for k, v in value.items())
+        mapping.fa.set_flow_style()
+        return mapping
     return value
+
+
+def _existing_key(mapping, name: str):
+    """The key of ``mapping`` that ``name`` means: itself, or the number it spells (``1:`` and
+    ``"1":`` both name object 1 in ``objects.materials``)."""
+    if name in mapping or not name.isdigit():
+        return name
+    return int(name) if int(name) in mapping else name
 
 
 def set_field(doc: Document, dotted: str, value: Any, comment: str | None = None) -> None:
@@ -90,12 +103,13 @@ def set_field(doc: Document, dotted: str, value: Any, comment: str | None = None
     parts = dotted.split(".")
     cur = doc.root
     for p in parts[:-1]:
+        p = _existing_key(cur, p)
         if p not in cur or cur[p] is None:
             if value is None:
                 return
             cur[p] = CommentedMap()
         cur = cur[p]
-    key = parts[-1]
+    key = _existing_key(cur, parts[-1])
     if value is None:
         cur.pop(key, None)
         return
@@ -112,6 +126,8 @@ def _flow(value: Any) -> str:
     """How a value set by ``set_field`` reads in the file (for placing its comment)."""
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_flow(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_flow(v)}" for k, v in value.items()) + "}"
     if isinstance(value, float) and value.is_integer():
         return str(int(value))
     return str(value)

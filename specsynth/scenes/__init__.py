@@ -518,7 +518,9 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
     """Content hash of a scene: its file and every file it references (no mesh conversion). A
     procedural scene's: its generator and the asset libraries it draws from."""
     if generated_name(ref):
-        h = hashlib.sha256(f"procedural {generated_name(ref)} v{random_room.GENERATOR_VERSION} "
+        from ..assets.library import printed
+
+        h = hashlib.sha256(f"procedural {generated_name(ref)} v{random_room.GENERATOR_VERSION} printed v{printed.VERSION} "
                            f"{assets.CONVERSION_VERSION}.{SCENE_VERSION}.{filemeshes.PARTS_VERSION} "
                            f"stages v{autostage.VERSION}\n".encode())
         for archive in sorted(furniture.library_dir().glob("*.sh3f")):

@@ -203,7 +203,7 @@ class _Dresser:
         x, y = self.top.world(u, v)
         tx, ty = self.top.world(*target)
         self.out.lights.append(LightDef(
-            kind="spot", power=float(self.rng.uniform(8, 30)), color=kelvin_rgb(float(self.rng.uniform(2700, 4200))),
+            kind="spot", power=float(self.rng.uniform(12, 40)), color=kelvin_rgb(float(self.rng.uniform(2700, 4200))),
             translation=(x, y, self.top.z + item.size[2] * 0.9), look_at=(tx, ty, self.top.z),
             spot_angle=float(self.rng.uniform(70, 110)), spot_blend=0.3))
 
@@ -282,7 +282,7 @@ def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
         dr.flat("board", w, w / printed.SIZES["board"][0] * printed.SIZES["board"][1], (stage[0] + stage[2]) / 2,
                 (stage[1] + stage[3]) / 2, float(rng.uniform(-15, 15)), 0.0008)
     for k in range(_count(rng, 4, 10, density)):
-        kind = "page" if rng.random() < 0.55 else "magazine"
+        kind = "page" if rng.random() < 0.35 else "magazine"
         w, d = (0.21, 0.297) if kind == "page" else (0.21, 0.28)
         area = stage if k % 2 else (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
         u, v = float(rng.uniform(area[0], area[2])), float(rng.uniform(area[1], area[3]))
@@ -297,7 +297,7 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
         spot = lay.place(0.62, 0.2, back)
         if spot is not None:
             dr.monitor(spot[0], spot[1], float(rng.uniform(-15, 15)))
-    if rng.random() < min(1.0, 0.7 * density):
+    if rng.random() < min(1.0, 0.8 * density):
         spot = lay.place(0.2, 0.2, back)
         if spot is not None:
             dr.lamp(spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))

@@ -27,8 +27,9 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # 2: painted walls, rugs, daylight-to-warm lights, furniture re-dressed. 3: room parameters,
 # workshop and shop kinds, a lamp per room, fixed furnished rooms. 4: clutter on furniture tops.
 # 5: framed photographs on the walls. 6: dressed work surfaces (props), office_desk and lab kinds, floor
-# items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints).
-GENERATOR_VERSION = 6
+# items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints). 7: more
+# magazines than pages, a stronger desk lamp, the panel over the desk the brightest.
+GENERATOR_VERSION = 7
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -487,10 +488,12 @@ def _lights(rng, W: float, D: float, H: float, window, placed, small, params: Ro
     spots = [(float((k + 0.5) / n * W - W / 2 + rng.uniform(-0.2, 0.2)), float(rng.uniform(-D / 4, D / 4)))
              for k in range(n)]
     desk = next((p for p in placed if is_worktop(p.item)), None)
+    share = [1.0 / n] * n
     if desk is not None:  # offices hang a panel over the desk: its top is the brightest place in the room
         spots[0] = (desk.x, desk.y - (0.3 if not desk.middle else 0.0))
-    lights = [LightDef(kind="area", power=total / n, size=size, color=colour, translation=(x, y, H - 0.02))
-              for x, y in spots]
+        share = [0.6] + [0.4 / (n - 1)] * (n - 1) if n > 1 else [1.0]
+    lights = [LightDef(kind="area", power=total * f, size=size, color=colour, translation=(x, y, H - 0.02))
+              for (x, y), f in zip(spots, share)]
     lights += [
         LightDef(kind="point", power=float(rng.uniform(10, 40)), color=kelvin_rgb(float(rng.uniform(2700, 4000))),
                  translation=(float(rng.uniform(-W / 2 + 0.4, W / 2 - 0.4)), float(rng.uniform(-D / 2 + 0.4, D / 2 - 0.4)),

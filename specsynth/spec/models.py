@@ -92,6 +92,17 @@ class Material(Strict):
     specular: float = Field(0.5, ge=0, le=1, description="Specular level (dielectric F0 = 0.08 * specular).")
     metallic: float = Field(0.0, ge=0, le=1)
     roughness: float = Field(0.5, ge=0, le=1)
+    color_gain: tuple[float, float, float] = Field(
+        (1.0, 1.0, 1.0), description="Multiplies the object's colour (vertex colours, texture or 'color') per "
+        "channel in linear light: scanned colours are often darker or duller than the object looks to the test "
+        "camera. `specsynth fit` sets it per object from real photographs.")
+
+    @field_validator("color_gain")
+    @classmethod
+    def _gain_range(cls, v):
+        if not all(0.1 <= g <= 4.0 for g in v):
+            raise ValueError("each colour gain must be in [0.1, 4]")
+        return v
 
     @field_validator("color")
     @classmethod
