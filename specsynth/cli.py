@@ -448,8 +448,12 @@ def cmd_fit(args) -> int:
                                        seed=loaded.spec.seed)
         edits += sensor
         if not args.no_object_colours:
+            same = _same_models(loaded, Path(args.models) if args.models else real_split.models)
             materials = {k: v.model_dump(exclude_defaults=True) for k, v in loaded.spec.objects.materials.items()}
-            edits += fit.object_edits(real, probe, cam, materials, args.real)
+            edits += fit.object_edits(real, [(rgb, [(i, m) for i, m in ms if i in same]) for rgb, ms in probe], cam,
+                                      materials, args.real)
+            if not same:
+                log("object colours: the spec's objects are not the real split's models; left as they are")
     doc = specedit.load(Path(args.spec).read_text())
     for e in edits:
         specedit.set_field(doc, e.field, e.value, e.comment)
@@ -465,6 +469,27 @@ def cmd_fit(args) -> int:
     if rebased:
         log(f"relative paths rewritten for the new folder: {', '.join(rebased)}")
     return 0
+
+
+def _same_models(loaded, real_models: Path | None) -> set[int]:
+    """The spec's obj_ids whose model file has the same bytes as the real split's model of that id:
+    only their colours can be fitted to the real images."""
+    import hashlib
+
+    from .assets.resolve import resolve_objects
+
+    if real_models is None:
+        return set()
+
+    def digest(p: Path) -> str | None:
+        return hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
+
+    out = set()
+    for a in resolve_objects(loaded.spec.objects, loaded.directory):
+        src = Path(a.source)
+        if src.is_file() and digest(src) == digest(real_models / f"obj_{a.obj_id:06d}.ply"):
+            out.add(a.obj_id)
+    return out
 
 
 def _fit_probe(args, edits, log) -> list:

@@ -163,3 +163,6 @@ def test_an_object_rendered_too_dark_gets_the_colour_gain_that_undoes_it():
     by = {e.field: e.value for e in edits}
     assert by["objects.materials.9"]["roughness"] == 0.2 and "specular" not in by["objects.materials.9"]
     assert by["objects.materials.1"]["specular"] == 0.3 and len(by["objects.materials.1"]["color_gain"]) == 3
+    again = fit.object_edits(real, probe, fit.Camera(), {"9": {"color_gain": (2.0, 2.0, 1.0)}}, "t")  # on top of it
+    np.testing.assert_allclose({e.field: e.value for e in again}["objects.materials.9"]["color_gain"][:2],
+                               2.0 * np.array(by["objects.materials.9"]["color_gain"][:2]), rtol=1e-3)

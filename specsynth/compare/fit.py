@@ -251,12 +251,14 @@ def object_gains(real: Collected, probe, cam: Camera) -> dict[int, tuple[np.ndar
 
 def object_edits(real: Collected, probe, cam: Camera, materials: dict, source: str) -> list[Edit]:
     """``objects.materials.<obj_id>`` with a fitted ``color_gain``, keeping what the spec gave that
-    object (its own entry, else the default's: the most specific entry is the only one used)."""
+    object (its own entry, else the default's: the most specific entry is the only one used). The
+    probe was rendered with the spec's own gain: the one found multiplies it."""
     out = []
     for obj_id, (gain, want, had) in sorted(object_gains(real, probe, cam).items()):
         base = materials.get(str(obj_id)) or materials.get("default") or {}
         entry = {k: v for k, v in base.items() if k != "color_gain"}
-        entry["color_gain"] = [round(float(g), 3) for g in gain]
+        total = np.clip(np.asarray(base.get("color_gain", (1.0, 1.0, 1.0))) * gain, 0.1, 4.0)
+        entry["color_gain"] = [round(float(g), 3) for g in total]
         out.append(Edit(f"objects.materials.{obj_id}", entry,
                         f"fit: real L*a*b* {want[0]:.0f} {want[1]:+.0f} {want[2]:+.0f}, the probe's "
                         f"{had[0]:.0f} {had[1]:+.0f} {had[2]:+.0f} in {source}"))
