@@ -107,7 +107,7 @@ class _Dresser:
     def __init__(self, top: Top, rng, cache: Path, prefix: str, layout: _Layout):
         self.top, self.rng, self.cache, self.prefix, self.layout = top, rng, cache, prefix, layout
         self.out = Dressing()
-        self.flat_z = top.z
+        self.flats: list[tuple[float, float, float, float]] = []  # (u, v, radius, top z) of flat items
 
     def name(self, what: str) -> str:
         return f"{self.prefix}_{what}_{len(self.out.meshes):03d}"
@@ -129,11 +129,14 @@ class _Dresser:
 
     def flat(self, kind: str, w: float, d: float, u: float, v: float, yaw: float, thickness: float) -> None:
         p = self.printed(kind)
-        self.flat_z += FLAT_STEP
+        radius = math.hypot(w, d) / 2
+        # on the highest flat item it may overlap (a bounding circle), else on the top itself
+        below = [z for (fu, fv, fr, z) in self.flats if math.hypot(u - fu, v - fv) < radius + fr]
+        z0 = max(below, default=self.top.z) + FLAT_STEP
         mat = SceneMaterial(texture=str(p.path), uv_scale=(1.0 / w, 1.0 / d), roughness=float(self.rng.uniform(0.5, 0.9)),
                             specular=0.3 if kind != "magazine" else 0.6)
-        self.put(kind, {"box": (w, d, thickness)}, u, v, self.flat_z + thickness / 2, yaw, mat, collide=False)
-        self.flat_z += thickness
+        self.put(kind, {"box": (w, d, thickness)}, u, v, z0 + thickness / 2, yaw, mat, collide=False)
+        self.flats.append((u, v, radius, z0 + thickness))
 
     # ------------------------------------------------------------------ things that stand
 

@@ -28,8 +28,9 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # workshop and shop kinds, a lamp per room, fixed furnished rooms. 4: clutter on furniture tops.
 # 5: framed photographs on the walls. 6: dressed work surfaces (props), office_desk and lab kinds, floor
 # items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints). 7: more
-# magazines than pages, a stronger desk lamp, the panel over the desk the brightest.
-GENERATOR_VERSION = 7
+# magazines than pages, a stronger desk lamp, the panel over the desk the brightest. 8: a flat item lies
+# on the flat items it overlaps, not on every one placed before it.
+GENERATOR_VERSION = 8
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
