@@ -27,8 +27,6 @@ from specsynth.physics import ArrangeError, ShapeCache, arrange, build_collision
 from specsynth.scenes.types import SceneDesc, Stage
 from specsynth.spec.models import Arrangements, Physics
 
-# ../shared beside the repository, as in CI.
-YCBV = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycbv_models_subset" / "models"
 TABLE_TOP = 0.75
 
 
@@ -56,9 +54,16 @@ def _asset(tm: trimesh.Trimesh, tmp: Path, name: str, obj_id: int) -> ObjectAsse
     )
 
 
-def _load_ycbv(obj: int) -> trimesh.Trimesh | None:
-    """BOP PLY in millimetres -> metres; the header names a texture that is missing (ignored)."""
-    path = YCBV / f"obj_{obj:06d}.ply"
+def _load_lm(obj: int) -> trimesh.Trimesh | None:
+    """A real LM model (BOP PLY in millimetres, installed by `make install`) in metres; None when the
+    set is not installed."""
+    from specsynth.assets.library.cache import cache_dir
+    from specsynth.assets.library.realsets import RealSetError, resolve_ref
+
+    try:
+        path = resolve_ref("dataset:lmo/models", cache_dir()) / f"obj_{obj:06d}.ply"
+    except RealSetError:
+        return None
     if not path.exists():
         return None
     import logging
@@ -70,10 +75,10 @@ def _load_ycbv(obj: int) -> trimesh.Trimesh | None:
 
 def lm_like_objects(tmp: Path, count: int) -> list[ObjectAsset]:
     shapes: list[tuple[str, trimesh.Trimesh]] = []
-    for obj in (1, 2):
-        tm = _load_ycbv(obj)
+    for obj in (1, 5):
+        tm = _load_lm(obj)
         if tm is not None:
-            shapes.append((f"ycbv_{obj}", tm))
+            shapes.append((f"lm_{obj}", tm))
     sizes = [
         (0.10, 0.07, 0.05), (0.06, 0.06, 0.12), (0.15, 0.08, 0.04), (0.08, 0.08, 0.08),
         (0.12, 0.05, 0.09), (0.07, 0.04, 0.03), (0.09, 0.09, 0.06),

@@ -440,7 +440,7 @@ def cmd_fit(args) -> int:
     if out.exists() and not out.is_file():
         raise FileNotFoundError(f"{out}: not a file to write the fitted spec to")
     real = measure(real_split, args.models, args.jobs, log)
-    edits = fit.geometry_edits(real, args.real)
+    edits = [] if args.keep_cameras else fit.geometry_edits(real, args.real)
     if args.probe_images:
         probe = _fit_probe(args, edits, log)
         fmt = {p.rgb.suffix.lower().lstrip(".") for p in real_split.iter_images()}
@@ -663,6 +663,9 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--probe-images", type=int, default=12,
                    help="views rendered to fit the sensor (exposure, blur, noise); 0: fit the cameras only")
     p.add_argument("--models", help="BOP models folder, when the real split has no masks and no models/ beside it")
+    p.add_argument("--keep-cameras", action="store_true",
+                   help="leave the camera ranges and visibility threshold as the spec has them (the sensor is then "
+                        "fitted on the spec's own views)")
     p.add_argument("--no-object-colours", action="store_true",
                    help="leave the objects' materials as they are (by default each object shown often enough gets "
                         "the colour gain that matches its real colour)")

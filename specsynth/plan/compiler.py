@@ -55,6 +55,15 @@ STAGE_FIELDS = {
     ),
 }
 
+def stage_of_field(dotted: str) -> str | None:
+    """The first stage whose jobs read a spec field (every later stage re-runs with it); None for
+    fields that only shape the written dataset (names, formats, metadata)."""
+    for stage, fields in STAGE_FIELDS.items():
+        if any(dotted == f or dotted.startswith(f + ".") or f.startswith(dotted + ".") for f in fields):
+            return stage
+    return None
+
+
 # Guards on work and memory, checked before anything runs (overridable: the estimate is rough).
 MAX_IMAGES = 100_000_000
 BYTES_PER_PIXEL = 200  # per worker: renderer film and passes (~160 B/px in Cycles) + annotation buffers

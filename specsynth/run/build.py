@@ -26,7 +26,7 @@ from ..plan.compiler import STAGES, JobGraph
 from ..plugins import PluginNotFound, backend_plugin, load_executor
 from .store import Store, write_json
 
-# Rough seconds per job on a 2-core machine (../shared/measurements.md), for `plan` estimates only.
+# Rough seconds per job on a 2-core machine (docs/performance.md), for `plan` estimates only.
 EST_SECONDS = {"arrange": 0.5, "view": 0.08}
 
 
