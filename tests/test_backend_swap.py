@@ -72,7 +72,7 @@ def test_demo_spec_renders_with_each_backend_by_one_line(tmp_path, name):
     s = build(compile_spec(loaded), tmp_path / name, jobs=1)
     assert not s.failures, s.failures
     assert s.images == 1 and s.instances > 0
-    rgb = next((tmp_path / name / "bop" / "train_pbr" / "000000" / "rgb").glob("*.jpg"))
+    rgb = next((tmp_path / name / "bop" / "train_pbr" / "000000" / "rgb").glob("*.png"))
     import numpy as np
     from PIL import Image
 

@@ -20,4 +20,4 @@ def test_demo_pair_builds(tmp_path):
     chunk = Path("bop/train_pbr/000000")
     for f in ("scene_gt.json", "scene_camera.json"):
         assert (tmp_path / "demo" / chunk / f).read_bytes() == (tmp_path / "demo_bl" / chunk / f).read_bytes()
-    assert len(list((tmp_path / "demo" / chunk / "rgb").glob("*.jpg"))) >= 12
+    assert len(list((tmp_path / "demo" / chunk / "rgb").glob("*.png"))) >= 12
