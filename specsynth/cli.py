@@ -38,7 +38,7 @@ def cmd_validate(args) -> int:
     for path in args.specs:
         try:
             graph = compile_spec(load_spec(path, args.set))
-            _print_notes(graph)
+            _print_notes(graph, args)
             print(f"{path}: ok")
         except SpecError as e:
             for p in e.problems:
@@ -47,7 +47,9 @@ def cmd_validate(args) -> int:
     return status
 
 
-def _print_notes(graph) -> None:
+def _print_notes(graph, args=None) -> None:
+    if getattr(args, "quiet", False):
+        return
     for note in graph.notes:
         print(f"note: {note}", file=sys.stderr)
 
@@ -115,13 +117,14 @@ def cmd_build(args) -> int:
     from .run.build import build
 
     _, graph = _compile(args.spec, args.set)
-    _print_notes(graph)
+    _print_notes(graph, args)
     console = Console(stderr=True) if not args.quiet else None
     executor, address = args.executor, None
     if "://" in executor:
         executor, address = executor.split("://", 1)
+    log = (lambda m: console.print(m, highlight=False, markup=False, soft_wrap=True)) if args.verbose and console else None
     s = build(graph, Path(args.out), executor=executor, jobs=args.jobs, address=address, console=console,
-              threads=args.threads)
+              threads=args.threads, log=log)
     out = Console()
     out.print(_summary_table(s))
     out.print(
@@ -140,7 +143,27 @@ def cmd_build(args) -> int:
         for f in s.failures[:10]:
             out.print(f"  {f['stage']} {f['job']}: {f['error']}")
         return 1
+    if not s.images:
+        print(f"error: the build wrote no image: {why_no_image(graph, s)}", file=sys.stderr)
+        return 1
     return 0
+
+
+def why_no_image(graph, s) -> str:
+    """Why a build without failed jobs has no image, and what to change."""
+    from .plan.compiler import principal_point_note
+
+    spec = graph.spec
+    if s.views_dropped and not s.cameras_rejected:
+        return "no object stayed in any arrangement (physics removed them all); see objects and arrangements"
+    if s.views_dropped:
+        why = (f"every camera was rejected ({s.cameras_rejected} positions tried, up to cameras.max_tries = "
+               f"{spec.cameras.max_tries} per view): none saw its object at least "
+               f"{spec.visibility.threshold:g} visible and in free space")
+        pp = principal_point_note(spec.intrinsics)
+        return f"{why}. {pp}" if pp else (f"{why}. Try a lower visibility.threshold, other cameras.distance or "
+                                          "cameras.elevation, or a larger cameras.max_tries")
+    return "no view was accepted; see failures.json in the output folder"
 
 
 def cmd_diff(args) -> int:
@@ -386,7 +409,7 @@ def cmd_compare(args) -> int:
     from .compare.pipeline import run_compare
     from .compare.report import table, to_json, write
 
-    log = (lambda m: print(m, file=sys.stderr)) if not args.json else None
+    log = (lambda m: print(m, file=sys.stderr)) if not (args.json or args.quiet) else None
     result, synth, real = run_compare(args.synth, args.real, models=args.models, jobs=args.jobs, log=log)
     if args.out:
         written = write(Path(args.out), result, synth, real)
@@ -574,7 +597,8 @@ def _spec_commands(sub) -> None:
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     p.add_argument("--executor", default="local", help="local (default) or dask://HOST:PORT")
     p.add_argument("--threads", type=int, default=None, help="renderer threads per worker (default: cores / jobs)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="no progress bars and notes (same as specsynth --quiet build)")
     p.set_defaults(fn=cmd_build)
 
     p = _with_set(sub.add_parser("diff", help="compare two output folders or two specs"))
@@ -688,6 +712,10 @@ def _dataset_commands(sub) -> None:
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
+    loud = ap.add_mutually_exclusive_group()
+    loud.add_argument("-q", "--quiet", action="store_true", help="print errors and the final summary only")
+    loud.add_argument("-v", "--verbose", action="store_true",
+                      help="also print a line per finished job and every library warning as raised")
     sub = ap.add_subparsers(dest="cmd", required=True)
     _spec_commands(sub)
     _library_commands(sub)
@@ -696,8 +724,31 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from . import notices
+
     ap = parser()
     args = ap.parse_args(argv)
+    with notices.Collector() as told:
+        status = _run(args)
+    report_notices(told.notices, args)
+    return status
+
+
+def report_notices(told, args) -> None:
+    """What libraries and asset readers warned about during the command, once, after its output:
+    a line per kind of message (``--verbose``: each message too; ``--quiet``: nothing)."""
+    from .notices import summarise
+
+    if args.quiet:
+        return
+    if args.verbose:
+        for text, source in dict((n.text, n.source) for n in told).items():
+            print(f"{source}: {text}", file=sys.stderr)
+    for line in summarise(told):
+        print(f"note: {line}", file=sys.stderr)
+
+
+def _run(args) -> int:
     try:
         return args.fn(args)
     except SpecError as e:

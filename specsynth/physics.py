@@ -28,6 +28,7 @@ from typing import Literal
 
 import numpy as np
 
+from . import processes
 from .assets import meshio
 from .assets.resolve import ObjectAsset
 from .atomic import atomic_write_bytes
@@ -769,7 +770,9 @@ def arrange(
     decompositions are stored (default: :func:`default_collision_cache_dir`).
     Raises :class:`ArrangeError` (a ``ValueError``) when objects were given but none could be kept.
     """
-    import pybullet as p
+    # pybullet prints "pybullet build time: <date>" to stderr on its first import: a line per
+    # worker process that tells a user nothing.
+    p = processes.import_quietly("pybullet", "pybullet build time:")
 
     _check_stage(stage)
     phys = arrangements.physics

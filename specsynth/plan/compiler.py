@@ -228,6 +228,15 @@ class JobGraph:
         }
 
 
+def principal_point_note(intr) -> str | None:
+    """A principal point outside the image (width and height changed without the rest of the
+    intrinsics) points every camera away from its object: every view is then rejected."""
+    if 0 <= intr.cx <= intr.width and 0 <= intr.cy <= intr.height:
+        return None
+    return (f"intrinsics: the principal point (cx, cy) = ({intr.cx:g}, {intr.cy:g}) lies outside the "
+            f"{intr.width} x {intr.height} image; when changing width and height, scale fx, fy, cx and cy too")
+
+
 def compile_spec(loaded: LoadedSpec) -> JobGraph:
     """Resolve asset and scene fingerprints and derive the per-stage input digests."""
     spec = loaded.spec
@@ -235,7 +244,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     problems = check_budgets(spec, loaded) + check_capabilities(spec, loaded)
     if problems:  # before hashing assets or loading scenes: refusing is the cheap part
         raise SpecError(problems)
-    notes: list[str] = []
+    notes: list[str] = [n for n in (principal_point_note(spec.intrinsics),) if n]
     try:
         asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
         notes += bop_folder_notes(spec.objects, loaded.directory)

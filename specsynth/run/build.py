@@ -20,6 +20,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from .. import notices
 from ..model.records import ImageRecord
 from ..plan import keys
 from ..plan.compiler import STAGES, JobGraph
@@ -292,10 +293,11 @@ class _Pipeline:
     render groups when its views are known. Holds the bookkeeping of one build's run."""
 
     def __init__(self, graph: JobGraph, store: Store, summary: BuildSummary, prog, wkey: str, workers: int,
-                 until: str):
+                 until: str, log: Callable[[str], None] | None = None):
         from .tasks import task_arrange, task_renders, task_views
 
         self.tasks = {"arrange": task_arrange, "view": task_views, "render": task_renders}
+        self.log = log
         self.graph, self.store, self.summary, self.prog = graph, store, summary, prog
         self.wkey, self.workers, self.until = wkey, workers, until
         self.arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
@@ -368,7 +370,8 @@ class _Pipeline:
         return self.render_calls(i) if self.views_left[i] == 0 else []
 
     def on_done(self, c: Call, res) -> list[Call]:
-        seconds, result, (pid, start) = res
+        seconds, result, (pid, start), told = res
+        notices.record(told)
         args = {}
         if c.stage == "render":
             for r in result:
@@ -378,6 +381,8 @@ class _Pipeline:
             for k, v in args.items():
                 phases[k] = round(phases.get(k, 0.0) + v, 4)
         self.spans.append((c.stage, c.ident, c.n, pid, start, seconds, {k: round(v, 4) for k, v in args.items()}))
+        if self.log is not None:
+            self.log(f"{c.stage} {c.ident}: " + _job_detail(c.stage, result) + f" in {seconds:.2f} s (worker {pid})")
         stage = self.summary.stages[c.stage]
         stage.ran += c.n
         stage.seconds += seconds
@@ -387,6 +392,8 @@ class _Pipeline:
         return self._view_resolved(c.arr, c.n) if c.stage == "view" else []
 
     def on_error(self, c: Call, e: BaseException) -> list[Call]:
+        if self.log is not None:
+            self.log(f"{c.stage} {c.ident}: {c.n} job(s) failed: {type(e).__name__}: {e}")
         self.summary.stages[c.stage].failed += c.n
         self.summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}"})
         return self._view_resolved(c.arr, c.n) if c.stage == "view" else []
@@ -404,9 +411,25 @@ class _Pipeline:
         summary.failures.sort(key=lambda f: (STAGES.index(f["stage"]), f["job"]))
 
 
+def _job_detail(stage: str, result) -> str:
+    """What one finished call did, for ``--verbose``."""
+    if stage == "arrange":
+        if result.get("cached"):
+            return "settled earlier (cached)"
+        return (f"{result['objects']} object(s) settled, {result['removed']} removed, "
+                f"{result['redropped']} re-dropped")
+    if stage == "view":
+        ok = sum(1 for r in result if r["accepted"])
+        return (f"{ok} of {len(result)} camera(s) accepted after "
+                f"{sum(r['tries'] for r in result)} tries")
+    return f"{len(result)} image(s)"
+
+
 def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1, address: str | None = None,
-          console=None, retries: int = 2, until: str = "merge", threads: int | None = None) -> BuildSummary:
+          console=None, retries: int = 2, until: str = "merge", threads: int | None = None,
+          log: Callable[[str], None] | None = None) -> BuildSummary:
     """Run the graph; ``until="view"`` stops after the camera stage (used by ``bench``).
+    ``log`` gets a line per finished or failed call (``--verbose``).
 
     Stages are pipelined per arrangement: its cameras are sampled as soon as it has settled, and
     its images rendered as soon as its cameras are known. Stage seconds in the summary are
@@ -428,7 +451,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         try:
             with _progress(console) as prog:
                 # wkey: which worker state a task uses (one Dask worker may serve several builds)
-                pipe = _Pipeline(graph, store, summary, prog, str(ctx.out), workers, until)
+                pipe = _Pipeline(graph, store, summary, prog, str(ctx.out), workers, until, log)
                 _run(ex, pipe.first_calls(), pipe.on_done, pipe.on_error, window=2 * workers, retries=retries,
                      split=split_group)
         finally:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import time
 
+from .. import notices
 from ..plan.compiler import Job
 from .arrange import run_arrange
 from .render import run_renders
@@ -39,10 +40,16 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
+# What a worker process was told while it started (before any job): sent back with its first job.
+_startup_notices: list[notices.Notice] = []
+
+
 def init_pool_worker(ctx: BuildContext, parent: int) -> None:
     """Initializer of the local pool's worker processes."""
     die_with_parent(parent)
-    init_worker(ctx)
+    with notices.Collector() as c:
+        init_worker(ctx)
+    _startup_notices.extend(c.notices)
 
 
 def init_worker(ctx: BuildContext) -> None:
@@ -81,11 +88,15 @@ def close_worker(out: str) -> None:
 
 
 def timed(fn, *args):
-    """Run a task; (worker seconds, result, (worker pid, start as epoch seconds)), so a build can
-    say where worker time went and draw its timeline."""
+    """Run a task; (worker seconds, result, (worker pid, start as epoch seconds), notices), so a
+    build can say where worker time went, draw its timeline, and report once what the libraries
+    and asset readers warned about (``specsynth.notices``) instead of each worker printing it."""
     start, t0 = time.time(), time.perf_counter()
-    res = fn(*args)
-    return time.perf_counter() - t0, res, (os.getpid(), start)
+    with notices.Collector() as c:
+        res = fn(*args)
+    told = [*_startup_notices, *c.notices]
+    _startup_notices.clear()
+    return time.perf_counter() - t0, res, (os.getpid(), start), told
 
 
 def task_arrange(out: str, job: Job):

@@ -14,6 +14,7 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -22,6 +23,7 @@ import numpy as np
 from specsynth.model.colour import check_finite, linear_to_srgb8
 from specsynth.model.conventions import c2w_during_exposure, opencv_to_blender_c2w
 from specsynth.model.ir import CameraIR, RenderResult, RenderScene
+from specsynth.processes import captured_fd
 from specsynth.spec.models import QualityPreset
 
 from .settings import (
@@ -88,6 +90,16 @@ def _quiet_stdout():
     finally:
         os.dup2(saved, fd)
         os.close(saved)
+
+
+@contextlib.contextmanager
+def _driver_probe_quiet():
+    """Blender's device enumeration logs 'WARNING CUEW initialization failed: Error opening the
+    library' (and HIPEW's) to stdout on every machine without a CUDA / HIP driver: that only means
+    there is no such GPU, which the caller turns into one sentence (or an error naming the device
+    the spec asked for)."""
+    with captured_fd(1), captured_fd(2):
+        yield
 
 
 @functools.cache  # once per process
@@ -190,7 +202,8 @@ class CyclesBackend:
                 prefs.compute_device_type = kind
             except TypeError:  # not built into this Blender
                 continue
-            prefs.get_devices()
+            with _driver_probe_quiet():
+                prefs.get_devices()
             if any(d.type == kind for d in prefs.devices):
                 for d in prefs.devices:
                     d.use = d.type == kind
@@ -200,6 +213,7 @@ class CyclesBackend:
         if want != "auto":
             raise RuntimeError(f"cycles: backend.device is {want!r} but Blender finds no {want.upper()} device on "
                                "this machine; use device: cpu, or auto to fall back to the CPU")
+        warnings.warn("cycles: no GPU found on this machine (device: auto); rendering on the CPU", stacklevel=2)
         cy.device = "CPU"
         return "cpu"
 
