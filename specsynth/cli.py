@@ -562,6 +562,39 @@ def _write_validated(out: Path, text: str) -> None:
             os.unlink(tmp)
 
 
+def cmd_init(args) -> int:
+    from .starter import write_starter
+
+    try:
+        dest = write_starter(Path(args.dir), models=args.models, scene=args.scene, backend=args.backend)
+    except FileExistsError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {dest}; next: specsynth validate {dest} && specsynth build {dest} --out {Path(args.dir) / 'out'}")
+    return 0
+
+
+def cmd_doctor(args) -> int:
+    from .doctor import report, run_checks
+
+    return report(run_checks())
+
+
+def _start_commands(sub) -> None:
+    """Getting started: a starter spec, and a check of the installation."""
+    p = sub.add_parser("init", help="write a commented starter spec (DIR/spec.yaml) that validates")
+    p.add_argument("dir", nargs="?", default=".", help="folder for spec.yaml (default: the current one)")
+    p.add_argument("--models", help="a BOP models folder for objects.path (e.g. dataset:lmo/models); "
+                   "default: built-in objects")
+    p.add_argument("--scene", help="your scene file (glTF/GLB, or a scene YAML); default: random_room")
+    p.add_argument("--backend", help="the renderer (default: cycles if installed, else mitsuba, else photo)")
+    p.set_defaults(fn=cmd_init)
+
+    p = sub.add_parser("doctor", help="check the installation: Python, renderers, OpenGL, assets, GPUs; "
+                       "prints a fix for each problem")
+    p.set_defaults(fn=cmd_doctor)
+
+
 def _with_set(p):
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a spec field, e.g. --set cameras.distance=[0.5,1.0]")
@@ -709,14 +742,30 @@ def _dataset_commands(sub) -> None:
     p.set_defaults(fn=cmd_export)
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: specsynth's version and each installed backend plugin's (read when asked)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .doctor import version_lines
+
+        print("\n".join(version_lines()))
+        parser.exit()
+
+
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="specsynth", description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action=_VersionAction,
+                    help="print the versions of specsynth and of each installed backend plugin")
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
     loud = ap.add_mutually_exclusive_group()
     loud.add_argument("-q", "--quiet", action="store_true", help="print errors and the final summary only")
     loud.add_argument("-v", "--verbose", action="store_true",
                       help="also print a line per finished job and every library warning as raised")
     sub = ap.add_subparsers(dest="cmd", required=True)
+    _start_commands(sub)
     _spec_commands(sub)
     _library_commands(sub)
     _dataset_commands(sub)

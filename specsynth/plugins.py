@@ -38,6 +38,20 @@ class Capabilities:
 
 
 @dataclass(frozen=True)
+class Check:
+    """One line of ``specsynth doctor``: a component, whether it works, and the fix when it does not.
+
+    ``ok`` None: information only (a GPU that is not there). ``required`` False: the component
+    works less well without the fix (a slower renderer) but nothing fails."""
+
+    component: str
+    ok: bool | None
+    detail: str
+    fix: str = ""
+    required: bool = True
+
+
+@dataclass(frozen=True)
 class BackendPlugin:
     name: str
     options: type  # a subclass of specsynth.spec.models.BackendOptions with ``name: Literal[<name>]``
@@ -55,6 +69,9 @@ class BackendPlugin:
     # error for less (measured by `specsynth bench --ladder`), e.g. {"high": {"samples": 16,
     # "denoise": True}}. Applied unless the spec sets the option itself; paper_* levels never.
     calibrated: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # "module:function" -> list[Check]: the plugin's own installation check for `specsynth doctor`
+    # (whether its renderer imports, its version, what the machine offers it). Imported only then.
+    checks: str = ""
 
     def options_for(self, options: Any, quality: Any) -> Any:
         """The spec's options with the level's calibration filled in where the spec is silent.
@@ -74,6 +91,18 @@ class BackendPlugin:
         except ImportError as e:
             hint = self.install_hint or f"install the package that provides the {self.name!r} backend"
             raise PluginNotFound(f"backend {self.name!r} cannot be imported ({e}); {hint}") from e
+
+    def run_checks(self) -> list[Check]:
+        """The plugin's installation checks (``checks``); one line when it has none or they fail."""
+        if not self.checks:
+            return [Check(self.name, None, "installed; the plugin has no self-check")]
+        mod, _, attr = self.checks.partition(":")
+        try:
+            found = getattr(importlib.import_module(mod), attr)()
+        except Exception as e:  # noqa: BLE001 - a broken plugin is a doctor's finding, not its crash
+            return [Check(self.name, False, f"its check failed: {type(e).__name__}: {e}",
+                          self.install_hint or f"reinstall the package that provides {self.name!r}")]
+        return list(found)
 
     def fingerprint(self) -> str:
         """The plugin's name and the versions of what it renders with; part of every render key."""

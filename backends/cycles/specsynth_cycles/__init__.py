@@ -21,6 +21,7 @@ PLUGIN = BackendPlugin(
     # 2: sky sun azimuth turned the IR's way. 3: OIDN without prefiltering the guides by default.
     revision=3,
     cost=(1.4, 0.458),  # a bare VGA frame on 2 cores: 1.40 s + 0.458 s per sample (benchmarks/bench_cycles.py)
+    checks="specsynth_cycles.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/cycles  (needs the bpy==5.0.1 wheel)",
     bench_variants=(("denoise", {"denoise": True}),
                     ("denoise-accurate", {"denoise": True, "denoise_prefilter": "accurate"}),

