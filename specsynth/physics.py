@@ -753,6 +753,21 @@ def _validate(world: _World, bodies: list[_Body], stage: Stage) -> dict[int, str
     return invalid
 
 
+def _add_colliders(world: _World, scene: SceneDesc, region: np.ndarray) -> None:
+    """The scene's collider meshes, only their faces inside ``region``, as static bodies."""
+    for inst in scene.collider_meshes():
+        mesh = meshio.read_mesh(inst.mesh_path)
+        T = inst.matrix
+        if not box_meets_region(_world_box(mesh.vertices, T), region):
+            continue  # most of a room: skip its transform and per-face test
+        # Colliders are placed in world coordinates directly: exact for any affine pose
+        # (including scale), and static bodies never move.
+        v = mesh.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        faces = faces_in_region(v, mesh.faces, region)
+        if len(faces):
+            world.add_collider(v, faces)
+
+
 def arrange(
     scene: SceneDesc,
     stage: Stage,
@@ -787,18 +802,7 @@ def arrange(
         world = _World(p, phys, Path(tmp))
         try:
             world.setup()
-            region = collider_region(stage, max(b.model.radius for b in bodies))
-            for inst in scene.collider_meshes():
-                mesh = meshio.read_mesh(inst.mesh_path)
-                T = inst.matrix
-                if not box_meets_region(_world_box(mesh.vertices, T), region):
-                    continue  # most of a room: skip its transform and per-face test
-                # Colliders are placed in world coordinates directly: exact for any affine pose
-                # (including scale), and static bodies never move.
-                v = mesh.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-                faces = faces_in_region(v, mesh.faces, region)
-                if len(faces):
-                    world.add_collider(v, faces)
+            _add_colliders(world, scene, collider_region(stage, max(b.model.radius for b in bodies)))
 
             redrops = [0] * len(bodies)
             removed = redropped = steps_total = 0
