@@ -119,7 +119,7 @@ def starter_text(folder: Path, *, models: str | None = None, scene: str | None =
                         out="out/" if here else f"{(folder / 'out').as_posix()}/")
     objects = (_OBJECTS_BOP.format(path=_yaml_str(_relative(models, folder))) if models else _OBJECTS_BUILTIN)
     scenes = _SCENE_FILE.format(path=_yaml_str(_relative(scene, folder))) if scene else _SCENE_BUILTIN
-    return head + objects + scenes + _REST.format(backend=f"{backend or default_backend():<23s}")
+    return head + objects + scenes + _REST.format(backend=f"{backend or default_backend():<22s}")
 
 
 def write_starter(folder: Path, *, models: str | None = None, scene: str | None = None,
