@@ -253,16 +253,31 @@ def test_unsupported_stage_raises_clear_error(tmp_path):
         arrange(scene, stage, [box, box], arr, "canonical", np.random.default_rng(0))
 
 
-def test_remove_mode_counts_without_redrops(tmp_path):
+@pytest.mark.parametrize("seed", [0, 2, 3])
+def test_remove_mode_counts_without_redrops(tmp_path, seed):
+    """on_invalid: remove gives an object up after its first invalid drop: counted in `removed`
+    and its reason, never re-dropped. A 10 cm box over a 2 cm stage stays (its centre is over the
+    stage); the balls dropped after it land on it and roll off the stage (arrange succeeds with
+    these seeds: the box is kept)."""
     scene, stage = make_table_scene(tmp_path, stage_half=(0.01, 0.01))
+    box = make_asset(trimesh.creation.box(extents=(0.1, 0.1, 0.05)), tmp_path, "box")
     ball = make_asset(trimesh.creation.icosphere(subdivisions=2, radius=0.04), tmp_path, "ball")
-    arr = Arrangements(drop_height=(0.05, 0.2), physics=Physics(max_time=2.0, on_invalid="remove"))
-    try:
-        res = arrange(scene, stage, [ball] * 3, arr, "random", np.random.default_rng(4))
-    except ArrangeError:
-        return
-    assert res.redropped == 0
-    assert res.removed + len(res.placed) == 3
+    objects = [box, ball, ball, ball]
+
+    def run(mode):
+        arr = Arrangements(drop_height=(0.02, 0.1), physics=Physics(max_time=2.0, max_redrops=1, on_invalid=mode))
+        return arrange(scene, stage, objects, arr, "canonical", np.random.default_rng(seed))
+
+    res = run("remove")
+    assert [i for i, _ in res.placed] == [0]
+    assert res.removed == 3 and res.redropped == 0
+    assert res.invalid_reasons == {"left_stage": 3}
+    check_valid(res, objects, stage)
+    # The same drops with re-drops allowed: each ball is dropped again once before it is given up.
+    again = run("redrop")
+    assert [i for i, _ in again.placed] == [0]
+    assert again.removed == 3 and again.redropped == 3
+    assert sum(again.invalid_reasons.values()) == again.removed + again.redropped == 6
 
 
 def test_empty_object_list(table):
