@@ -141,7 +141,7 @@ def cmd_build(args) -> int:
     if s.failures:
         out.print(f"[red]{len(s.failures)} failed job group(s); see {Path(args.out) / 'failures.json'}[/red]")
         for f in s.failures[:10]:
-            out.print(f"  {f['stage']} {f['job']}: {f['error']}")
+            out.print(f"  {f['stage']} {f['job']} ({f['tries']} tries): {f['error']}")
         return 1
     if not s.images:
         print(f"error: the build wrote no image: {why_no_image(graph, s)}", file=sys.stderr)

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_build import cli_build, tree_digest
 
@@ -62,27 +63,41 @@ def test_dask_local_cluster_gives_the_same_bytes(spec_file, reference, tmp_path)
     assert a == b, sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))[:10]
 
 
-def _store_has(out: Path, stage: str) -> bool:
-    if stage == "merge":  # the main process is writing the dataset's files
-        return (out / "bop").is_dir() and any((out / "bop").rglob("*.png"))
-    d = out / ".specsynth" / "store" / stage
-    return d.is_dir() and any(d.rglob("record.json"))
+def paused_build(spec_file: Path, out: Path, stage: str, marker: Path, *, new_session: bool) -> subprocess.Popen:
+    """`specsynth build --jobs 2` in a child that stops for good at ``stage`` (tests/paused_build.py)
+    once ``marker`` holds its pid; a child that ends or hangs before that fails the test."""
+    proc = subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name("paused_build.py")), stage, str(marker), "--",
+         "build", str(spec_file), "--out", str(out), "--jobs", "2", "--quiet"],
+        start_new_session=new_session, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    )
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None and not marker.exists():
+        time.sleep(0.05)
+    if not marker.exists():
+        proc.kill()
+        err = proc.communicate()[1].decode(errors="replace")[-2000:]
+        pytest.fail(f"the build did not stop at {stage} (exit status {proc.poll()}): {err}")
+    assert proc.poll() is None  # stopped, not finished
+    return proc
 
 
 @pytest.mark.parametrize("kill_after", ["arrange", "view", "render", "merge"])
 def test_sigkill_then_resume_is_byte_identical(spec_file, reference, tmp_path, kill_after):
+    """The build is stopped where it is to be killed (its first finished job of that stage, or its
+    fifth dataset file in place), then the whole process group gets SIGKILL while the workers are
+    still at their jobs."""
     out = tmp_path / "killed"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "specsynth.cli", "build", str(spec_file), "--out", str(out), "--jobs", "2", "--quiet"],
-        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None and not _store_has(out, kill_after):
-        time.sleep(0.05)
-    if proc.poll() is not None:
-        pytest.skip("the build finished before it could be killed")
+    proc = paused_build(spec_file, out, kill_after, tmp_path / "stopped", new_session=True)
+    d = out / ".specsynth" / "store" / kill_after
+    if kill_after == "merge":
+        assert len([p for p in (out / "bop").rglob("*") if p.is_file()]) >= 5
+        assert not (out / ".specsynth" / "outputs.json").exists()  # the merge had not finished
+    else:
+        assert any(d.rglob("record.json"))
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
+    assert proc.returncode == -signal.SIGKILL
     # Nothing half-written is visible under a final name: a kill while the dataset is written can
     # leave only hidden temp files (".<name>.<id>.tmp"), which the next build removes.
     temps = [p for p in out.rglob("*.tmp") if ".specsynth" not in p.parts]
@@ -93,18 +108,43 @@ def test_sigkill_then_resume_is_byte_identical(spec_file, reference, tmp_path, k
     assert tree_digest(out) == tree_digest(reference)
 
 
-def test_crashing_renderer_is_retried_then_reported(spec_file, tmp_path):
+def _crashy(spec_file: Path, cam: int, *extra: str):
     g0 = compile_spec(load_spec(spec_file, ["backend.name=crashy_backend:PLUGIN"]))
-    victim = g0.render_job(1, 1)
-    overrides = ["backend.name=crashy_backend:PLUGIN", f"backend.crash_seed={victim.seed}"]
-    g = compile_spec(load_spec(spec_file, overrides))
-    s = build(g, tmp_path / "crash", jobs=2, retries=1)
+    victim = g0.render_job(1, cam)
+    overrides = ["backend.name=crashy_backend:PLUGIN", f"backend.crash_seed={victim.seed}", *extra]
+    return compile_spec(load_spec(spec_file, overrides))
+
+
+def test_crashing_renderer_is_retried_then_reported(spec_file, tmp_path, monkeypatch):
+    """A render that segfaults its worker every time: run once among the others (the crash takes
+    the pool down, so every job in flight is suspect and none uses up a retry), then alone, then
+    once more alone for its one retry; then reported with its tries, the rest complete."""
+    log = tmp_path / "runs.log"
+    monkeypatch.setenv("CRASHY_LOG", str(log))  # the crashy backend logs each run's pid
+    s = build(_crashy(spec_file, 1), tmp_path / "crash", jobs=2, retries=1)
     failed = [f for f in s.failures if f["stage"] == "render"]
     assert len(failed) == 1 and failed[0]["job"] == "arr=000001/cam=001", s.failures
     assert "BrokenProcessPool" in failed[0]["error"]
+    pids = log.read_text().split()
+    assert failed[0]["tries"] == len(pids) == 3  # 1 + 1 alone + 1 retry
+    assert len(set(pids)) == 3  # each crash killed its worker: every try ran in a new process
     assert s.stages["render"].failed == 1
     assert s.images == s.views_accepted - 1  # the rest of the build completed
     assert json.loads((tmp_path / "crash" / "failures.json").read_text()) == s.failures
+
+
+def test_a_renderer_that_crashes_once_is_retried_and_its_image_kept(spec_file, tmp_path, monkeypatch):
+    from PIL import Image
+
+    log = tmp_path / "runs.log"
+    monkeypatch.setenv("CRASHY_LOG", str(log))
+    s = build(_crashy(spec_file, 1, "backend.crash_times=1"), tmp_path / "once", jobs=2, retries=1)
+    assert s.failures == [] and s.images == s.views_accepted == 12
+    pids = log.read_text().split()
+    assert len(pids) == 2 and pids[0] != pids[1]  # crashed in one worker, rendered in a new one
+    rgbs = sorted((tmp_path / "once" / "bop" / "train_pbr" / "000000" / "rgb").iterdir())
+    flat7 = [p.name for p in rgbs if (np.asarray(Image.open(p)) == 7).all()]  # the retry's render
+    assert len(rgbs) == 12 and flat7 == ["000004.png"]  # arr 1, cam 1
 
 
 def test_second_build_into_same_folder_is_refused(spec_file, tmp_path):
@@ -259,19 +299,15 @@ def _alive(pid: int) -> bool:
 
 def test_pool_workers_exit_when_the_build_is_killed(spec_file, tmp_path):
     """kill -9 of the build process (only it, not its group) used to leave its workers running
-    for minutes; they now die with it (PR_SET_PDEATHSIG)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "specsynth.cli", "build", str(spec_file), "--out", str(tmp_path / "o"), "--jobs", "2",
-         "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )
+    for minutes; they now die with it (PR_SET_PDEATHSIG). The build is stopped after its first
+    arrangement (tests/paused_build.py), so it cannot end before its workers are seen."""
+    proc = paused_build(spec_file, tmp_path / "o", "arrange", tmp_path / "stopped", new_session=False)
     deadline = time.time() + 120
     workers: set[int] = set()
-    while time.time() < deadline and proc.poll() is None and len(workers) < 2:
-        workers = {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text(errors="replace")} \
-            if Path(f"/proc/{proc.pid}").exists() else set()
+    while time.time() < deadline and len(workers) < 2:
+        workers = {c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text(errors="replace")}
         time.sleep(0.05)
-    if proc.poll() is not None or len(workers) < 2:
-        pytest.skip("the build ended before its workers could be seen")
+    assert len(workers) == 2 and all(_alive(w) for w in workers)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     deadline = time.time() + 20  # a worker still importing its renderer dies when it gets to its initializer

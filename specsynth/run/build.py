@@ -95,7 +95,7 @@ class BuildSummary:
     objects_redropped: int = 0
     images: int = 0
     instances: int = 0
-    failures: list[dict[str, str]] = field(default_factory=list)
+    failures: list[dict[str, str | int]] = field(default_factory=list)
     # What skipping saved, in seconds (estimates from this build's own measured render times).
     saved: dict[str, float] = field(default_factory=dict)
     glossy_bounces_skipped: int = 0  # renders whose scene had no glossy material
@@ -191,7 +191,8 @@ class Call:
     ident: str
     n: int
     arr: int
-    tries: int = 0
+    tries: int = 0  # retries used up
+    runs: int = 0  # runs that failed (with a crash, also those a crashing neighbour took down)
 
     @property
     def priority(self) -> tuple[bool, int, int]:
@@ -248,6 +249,7 @@ def _run(ex, calls: list[Call], on_done: Callable[[Call, Any], list[Call]],
         try:
             res = fut.result()
         except Exception as e:  # one failed job must not stop the build
+            c.runs += 1
             if _is_crash(e) and not isolated:
                 suspects.append(c)
             elif c.tries < retries:
@@ -395,7 +397,8 @@ class _Pipeline:
         if self.log is not None:
             self.log(f"{c.stage} {c.ident}: {c.n} job(s) failed: {type(e).__name__}: {e}")
         self.summary.stages[c.stage].failed += c.n
-        self.summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}"})
+        self.summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}",
+                                      "tries": c.runs})
         return self._view_resolved(c.arr, c.n) if c.stage == "view" else []
 
     def record_timing(self, out: Path) -> None:
