@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -359,8 +361,33 @@ def test_outputs_are_copies_and_a_rebuild_restores_edited_ones(spec_file, tmp_pa
     assert tree_digest(out) == clean
 
 
-@pytest.mark.parametrize("link", ["bop", ".specsynth", "bop/train_pbr/000000/rgb", "coco/train_pbr.json"])
-def test_a_link_out_of_the_output_folder_is_refused_and_nothing_outside_changes(spec_file, tmp_path, link):
+def tree_state(root: Path) -> dict[str, tuple]:
+    """Every entry under root, links not followed: kind, bytes or link target, mode, mtime."""
+    state = {}
+    for p in sorted(root.rglob("*")):
+        st = p.lstat()
+        if p.is_symlink():
+            what = ("link", os.readlink(p))
+        elif p.is_dir():
+            what = ("dir",)
+        else:
+            what = ("file", p.read_bytes())
+        state[str(p.relative_to(root))] = (*what, st.st_mode, st.st_mtime_ns)
+    return state
+
+
+@pytest.mark.parametrize("link, to", [
+    ("bop", "folder"),
+    (".specsynth", "folder"),
+    ("bop/train_pbr/000000/rgb", "folder"),
+    ("coco/train_pbr.json", "file"),
+    ("parquet/images.parquet", "nothing"),  # a dangling link: writing through it would create the file
+])
+def test_a_link_out_of_the_output_folder_is_refused_and_nothing_outside_changes(spec_file, tmp_path, link, to):
+    """The build stops, naming the link, before it writes, deletes or touches anything: in the
+    output folder (every entry's bytes, mode and mtime) and outside it."""
+    import shutil
+
     from specsynth.cli import main
     from specsynth.run.build import UnsafeOutput
 
@@ -372,17 +399,18 @@ def test_a_link_out_of_the_output_folder_is_refused_and_nothing_outside_changes(
     (outside / "keep.txt").write_text("keep me")
     target = out / link
     if target.is_dir():
-        import shutil
-
         shutil.rmtree(target)
     else:
         target.unlink()
-    target.symlink_to(outside if not link.endswith(".json") else outside / "keep.txt")
-    before = {p.name: p.read_bytes() for p in outside.iterdir()}
-    with pytest.raises(UnsafeOutput, match="symbolic link out of the output folder"):
+    where = {"folder": outside, "file": outside / "keep.txt", "nothing": outside / "images.parquet"}[to]
+    target.symlink_to(where)
+    assert target.is_symlink() and target.exists() == (to != "nothing")
+    before_out, before = tree_state(out), tree_state(outside)
+    with pytest.raises(UnsafeOutput, match=f"^{re.escape(str(target))}: a symbolic link out of the output folder"):
         build(graph(spec_file), out, jobs=1)
     assert main(["build", str(spec_file), "--out", str(out), "--quiet"]) == 2
-    assert {p.name: p.read_bytes() for p in outside.iterdir()} == before
+    assert tree_state(outside) == before and not (outside / "images.parquet").exists()
+    assert tree_state(out) == before_out  # nothing written, deleted or touched before the refusal
 
 
 def test_diff_verifies_files_against_what_each_build_recorded(spec_file, tmp_path, capsys):
@@ -418,6 +446,8 @@ def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path,
     done = sorted(Store_keys(out, "arrange"))
     real = atomic.os.fdopen
 
+    attempts: list[tuple[Path, int]] = []  # (the file being written, its bytes)
+
     class Full:
         def __init__(self, f):
             self.f = f
@@ -429,11 +459,17 @@ def test_a_full_disk_names_the_file_and_keeps_finished_jobs(spec_file, tmp_path,
             self.f.close()
 
         def write(self, data):
+            tmp = Path(os.readlink(f"/proc/self/fd/{self.f.fileno()}"))  # ".<name>.<id>.tmp" beside <name>
+            attempts.append((tmp.parent / tmp.name[1:].rsplit(".", 2)[0], len(data)))
             raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode="r": Full(real(fd, mode)))
-    with pytest.raises(OSError, match=r"no space left on the device of .*: writing [\d,]+ bytes, [\d,]+ bytes free"):
+    with pytest.raises(OSError, match=r"no space left on the device of (\S+): writing ([\d,]+) bytes, ([\d,]+) bytes free") as e:
         build(graph(spec_file), out, jobs=1)
+    m = re.search(r"of (\S+): writing ([\d,]+) bytes, ([\d,]+) bytes free", str(e.value))
+    named, needed, free = Path(m[1]), int(m[2].replace(",", "")), int(m[3].replace(",", ""))
+    assert attempts and (named, needed) == attempts[-1]  # the write that stopped the build: its file and size
+    assert out.resolve() in named.resolve().parents and needed > 0 and free > 0
     assert sorted(Store_keys(out, "arrange")) == done  # nothing finished was lost
     monkeypatch.setattr(atomic.os, "fdopen", real)
     again = build(graph(spec_file), out, jobs=1)
