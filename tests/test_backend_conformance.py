@@ -1,16 +1,16 @@
 """Every installed render backend against specsynth.testing.conformance.
 
 One test per (backend, check); the backend instance is shared per module because PBR backends
-take seconds to start. Backends that cannot be imported here are skipped with the PluginNotFound
-message (which says what to install); the path tracers are marked slow.
+take seconds to start. Every backend with an entry point is tested: one that is installed but
+cannot be imported fails (PluginNotFound says what to reinstall); the path tracers are marked slow.
 """
 
 from __future__ import annotations
 
 import pytest
 
-from specsynth.backend_api import PluginNotFound, available_backends, load_backend
-from specsynth.testing.conformance import CHECKS, ConformanceContext
+from specsynth.backend_api import available_backends, load_backend
+from specsynth.testing.conformance import CHECKS, ConformanceContext, NotDeclared, not_applicable
 
 SLOW_BACKENDS = {"cycles", "mitsuba"}
 # Options for the conformance run, where a backend's defaults are not what the suite wants.
@@ -26,10 +26,7 @@ def _params():
 @pytest.fixture(scope="module", params=list(_params()))
 def ctx(request, tmp_path_factory):
     name = request.param
-    try:
-        load_backend(name)
-    except PluginNotFound as e:
-        pytest.skip(str(e))
+    load_backend(name)  # installed (it has an entry point): it must load, not be skipped
     context = ConformanceContext(name, OPTIONS.get(name, {"name": name}), tmp_path_factory.mktemp(f"conf_{name}"))
     yield context
     context.close()
@@ -37,6 +34,13 @@ def ctx(request, tmp_path_factory):
 
 @pytest.mark.parametrize("check", list(CHECKS))
 def test_conformance(ctx, check):
+    """Checks of a capability the backend does not declare are reported as skipped with the reason,
+    never as passes; every other check raises ConformanceError on a failure."""
+    reason = not_applicable(ctx, check)
+    if reason is not None:
+        with pytest.raises(NotDeclared):  # a check that does not apply must not pass silently
+            CHECKS[check](ctx)
+        pytest.skip(reason)
     CHECKS[check](ctx)
 
 
@@ -72,6 +76,8 @@ def _broken_variants():
             return RenderResult(rgb=r.rgb[:, :-1].copy(), stats=r.stats)
 
     return [
+        pytest.param(PhotoBackend, "depth_of_field", id="claims-depth-of-field"),  # declared, but a pinhole
+        pytest.param(PhotoBackend, "motion_blur", id="claims-motion-blur"),  # declared, but a still camera
         pytest.param(UpsideDown, "silhouettes", id="upside-down"),
         pytest.param(Leaky, "reload", id="leaky-load"),
         pytest.param(Unseeded, "determinism", id="unseeded"),
@@ -82,24 +88,23 @@ def _broken_variants():
 
 @pytest.fixture(scope="module")
 def photo_available():
-    try:
-        load_backend("photo")
-    except PluginNotFound as e:
-        pytest.skip(str(e))
+    assert load_backend("photo").__name__ == "PhotoBackend"
 
 
 def _broken_params():
-    try:
-        return _broken_variants()
-    except ImportError:  # photo backend not installed: the photo_available fixture reports why
-        return []
+    return _broken_variants()  # the photo backend is part of this repository: an ImportError is a failure
 
 
 @pytest.mark.parametrize("cls, check", _broken_params())
 def test_suite_catches_broken_backend(photo_available, tmp_path, cls, check):
     from specsynth.testing.conformance import ConformanceError
 
-    context = ConformanceContext("photo", {"name": "photo"}, tmp_path, backend_class=cls)
+    from dataclasses import replace
+
+    from specsynth.plugins import backend_plugin
+
+    claims = replace(backend_plugin("photo").capabilities, depth_of_field=True, motion_blur=True)
+    context = ConformanceContext("photo", {"name": "photo"}, tmp_path, backend_class=cls, capabilities=claims)
     try:
         with pytest.raises(ConformanceError):
             CHECKS[check](context)

@@ -25,7 +25,7 @@ import math
 import pickle
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Callable
@@ -45,7 +45,7 @@ from ..model.ir import (
     WorldIR,
     as_tuple,
 )
-from ..plugins import BackendPlugin, backend_plugin, load_backend
+from ..plugins import BackendPlugin, Capabilities, backend_plugin, load_backend
 from ..spec.models import PAPER_PRESETS, BackendOptions
 from ..views.cameras import look_at
 
@@ -252,13 +252,17 @@ class ConformanceContext:
     """One backend instance and the test scenes, shared by the checks (backends are slow to start)."""
 
     def __init__(
-        self, name: str, options: Any = None, tmp_path: str | Path = ".", *, threads: int = 1, backend_class: type | None = None
+        self, name: str, options: Any = None, tmp_path: str | Path = ".", *, threads: int = 1, backend_class: type | None = None,
+        capabilities: Capabilities | None = None,
     ):
         """``backend_class`` tests a class directly (before its entry point is registered, or a
-        deliberately broken variant); by default the class is found by ``name`` like the core does."""
+        deliberately broken variant); by default the class is found by ``name`` like the core does.
+        ``capabilities`` replaces what the plugin declares (a variant that claims more than it does)."""
         self.name = name
         if backend_class is not None:
             self.__dict__["backend_class"] = backend_class  # pre-fills the cached_property
+        if capabilities is not None:
+            self.__dict__["plugin"] = replace(backend_plugin(name), capabilities=capabilities)
         self.options = {"name": name} if options is None else options
         self.threads = threads
         self.tmp_path = Path(tmp_path)
@@ -444,9 +448,7 @@ def _sharpness(img: np.ndarray, u: float, v: float, r: int) -> float:
 def check_depth_of_field(ctx: ConformanceContext) -> None:
     """A backend declaring depth_of_field renders a thin lens: focused on the checker-textured box,
     the box stays about as sharp as through a pinhole; focused 4x farther, it blurs."""
-    if not ctx.plugin.capabilities.depth_of_field:
-        return
-    from dataclasses import replace
+    _require_declared(ctx, "depth_of_field")
 
     s = ctx.scenes
     u, v, z = project(s.camera, BOX_CENTRE)
@@ -475,9 +477,7 @@ def check_motion_blur(ctx: ConformanceContext) -> None:
     """A backend declaring motion_blur moves the camera over the exposure (CameraIR.motion): a
     sideways travel and a turn each smear the textured box, and the smear is centred on the
     mid-exposure pose (the record's pose, which the labels use)."""
-    if not ctx.plugin.capabilities.motion_blur:
-        return
-    from dataclasses import replace
+    _require_declared(ctx, "motion_blur")
 
     s = ctx.scenes
     u, v, _ = project(s.camera, BOX_CENTRE)
@@ -501,6 +501,27 @@ def check_motion_blur(ctx: ConformanceContext) -> None:
                  "(the pose is the middle of the exposure: the motion runs from -1/2 to +1/2 of it)")
 
 
+# Checks of an optional capability: they apply to the backends that declare it.
+NEEDS_CAPABILITY = {"depth_of_field": "depth_of_field", "motion_blur": "motion_blur"}
+
+
+class NotDeclared(Exception):
+    """A check of a capability the backend does not declare: it does not apply (neither passed nor failed)."""
+
+
+def not_applicable(ctx: ConformanceContext, check_name: str) -> str | None:
+    """Why the check ``check_name`` does not apply to this backend, or None when it does."""
+    cap = NEEDS_CAPABILITY.get(check_name)
+    if cap is not None and not getattr(ctx.plugin.capabilities, cap):
+        return f"{ctx.name} does not declare the capability {cap!r}"
+    return None
+
+
+def _require_declared(ctx: ConformanceContext, cap: str) -> None:
+    if not getattr(ctx.plugin.capabilities, cap):
+        raise NotDeclared(f"{ctx.name} does not declare the capability {cap!r}")
+
+
 CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
     "discovery": check_discovery,
     "version": check_version,
@@ -516,14 +537,15 @@ CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
 
 
 def check_backend(name: str, options: Any = None, tmp_path: str | Path = ".", *, skip: tuple[str, ...] = (), threads: int = 1) -> None:
-    """Run every check against the backend ``name``; raises ConformanceError on the first failure."""
+    """Run every check that applies to the backend ``name`` (those of undeclared capabilities do
+    not); raises ConformanceError on the first failure."""
     unknown = set(skip) - set(CHECKS)
     if unknown:
         raise ValueError(f"unknown conformance checks: {sorted(unknown)}")
     ctx = ConformanceContext(name, options, tmp_path, threads=threads)
     try:
         for check_name, check in CHECKS.items():
-            if check_name not in skip:
+            if check_name not in skip and not_applicable(ctx, check_name) is None:
                 check(ctx)
     finally:
         ctx.close()
