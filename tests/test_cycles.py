@@ -199,6 +199,7 @@ def _lit_scene(meshes, glossy: bool = False) -> RenderScene:
     )
 
 
+@pytest.mark.slow
 def test_triangles_naming_a_vertex_twice_are_dropped_not_fatal(backend, meshes, tmp_path):
     """Library furniture has zero-area triangles like (a, b, b); with custom normals set they used
     to crash Blender (a segfault in a build). The sphere with such triangles added renders as before."""
@@ -274,6 +275,7 @@ def test_persistent_scene_honours_every_change(backend, meshes):
     assert kept[0].tobytes() != kept[1].tobytes() and kept[1].tobytes() != kept[2].tobytes()
 
 
+@pytest.mark.slow
 def test_persistent_scene_follows_a_new_load(backend, meshes):
     """A scene kept from the last arrangement's renders is dropped at the next load: the same
     settings render the new scene exactly as a fully synced render does."""

@@ -143,6 +143,7 @@ def test_a_variant_that_cannot_run_here_is_a_clear_error():
         assert variant.choose_variant("llvm_ad_rgb") == ("llvm_ad_rgb", {})
 
 
+@pytest.mark.slow
 def test_white_furnace(backend, tmp_path):
     """Convex Lambertian sphere, albedo 0.5, uniform radiance-1 world: every sphere pixel is 0.5."""
     mesh = MeshInstance("ball", _sphere(tmp_path), "sphere", _pose(), MaterialIR(base_color=(0.5,) * 3, **DIFFUSE))
@@ -156,6 +157,7 @@ def test_white_furnace(backend, tmp_path):
     assert r.rgb.dtype == np.uint8 and r.linear.dtype == np.float32
 
 
+@pytest.mark.slow
 def test_projection_matches_K(backend, tmp_path):
     """An emissive 1 cm ball's image centroid lands at K @ x within 0.5 px, with an off-centre
     principal point so the offsets' sign and half-pixel convention are both exercised."""
@@ -174,6 +176,7 @@ def test_projection_matches_K(backend, tmp_path):
         assert np.abs(got - want).max() < 0.5, (p, got, want)
 
 
+@pytest.mark.slow
 def test_determinism(backend, tmp_path):
     mesh = MeshInstance("ball", _sphere(tmp_path, 0.3), "s", _pose(), MaterialIR(base_color=(0.6, 0.3, 0.2), roughness=0.3))
     light = LightIR(kind="area", pose=_pose((0, 0, 1.0)), power=20.0, size=(0.3, 0.3))
@@ -186,6 +189,7 @@ def test_determinism(backend, tmp_path):
     assert not np.array_equal(a.linear, c.linear)
 
 
+@pytest.mark.slow
 def test_moving_only_the_sensor(backend, tmp_path):
     """Views of one arrangement: no reload, a different image, the same image when coming back,
     and (JIT variants) no new kernel compilation for the new pose."""
@@ -217,6 +221,7 @@ def test_moving_only_the_sensor(backend, tmp_path):
     assert np.array_equal(a.linear, a2.linear)
 
 
+@pytest.mark.slow
 def test_vertex_colours_and_texture_orientation(backend, tmp_path):
     """A Lambertian quad facing the camera in a uniform radiance-1 world renders its albedo, so
     colours are checked in linear units; the texture's top row must appear at the top."""
@@ -248,6 +253,7 @@ def test_vertex_colours_and_texture_orientation(backend, tmp_path):
     assert bottom[1] > 0.9 and bottom[0] < 0.05, bottom
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["area", "point"])
 def test_light_units_render(backend, tmp_path, kind):
     """Irradiance below a light at distance d, on a Lambertian floor of albedo rho:
@@ -268,6 +274,7 @@ def test_light_units_render(backend, tmp_path, kind):
     assert centre == pytest.approx(rho * E / math.pi, rel=0.03)
 
 
+@pytest.mark.slow
 def test_clamp_is_reported_not_silent(backend, tmp_path):
     mesh = MeshInstance("ball", _sphere(tmp_path, 0.3, 2), "s", _pose(), MaterialIR(**DIFFUSE))
     backend.load(RenderScene(meshes=(mesh,), world=WorldIR(color=(0.5, 0.5, 0.5))))
@@ -276,6 +283,7 @@ def test_clamp_is_reported_not_silent(backend, tmp_path):
     assert r.stats["clamp_ignored"] == 10.0
 
 
+@pytest.mark.slow
 def test_vertex_colour_times_texture(backend, tmp_path):
     """base_color x vertex colour x texture, the Cycles backend's product."""
     from PIL import Image
@@ -302,6 +310,7 @@ def test_sun_and_spot_conventions():
     assert mapping.spot_angles(60.0, 1.0)[1] == pytest.approx(0.0, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_new_arrangement_reuses_kernels(backend, tmp_path):
     """A new arrangement with the same structure (moved objects, other colours) must not
     recompile: kernels key on object registry ids, which load() keeps stable."""
@@ -344,6 +353,7 @@ def test_mesh_normals_use_the_exact_inverse(entries):
     assert np.allclose(_inverse3(R), np.linalg.inv(R), rtol=1e-7, atol=1e-9 * np.abs(np.linalg.inv(R)).max())
 
 
+@pytest.mark.slow
 def test_parts_sharing_a_texture_render_as_with_their_own(backend, tmp_path, monkeypatch):
     """A scene whose parts share one texture decodes it once, and the next scene reuses what it
     shares with the last; each part still gets its own base-colour factor (the render equals the

@@ -101,6 +101,7 @@ def _q(spp: int, depth: int = 1) -> QualityPreset:
     return QualityPreset(aa=spp, diffuse_rays=1, specular_rays=1, diffuse_depth=depth, specular_depth=depth, max_depth=depth)
 
 
+@pytest.mark.slow
 def test_calibrated_principled_furnace(backend, tmp_path):
     """Rough dielectric (roughness 0.9, specular 0.5, base 0.5) in a radiance-1 world: the sphere's
     mean is Blender's measured albedo 0.5 (1 - 0.0242) + 0.0242 = 0.5121 (Mitsuba's raw
@@ -114,6 +115,7 @@ def test_calibrated_principled_furnace(backend, tmp_path):
     assert img[disc].mean() == pytest.approx(0.5121, rel=0.01)
 
 
+@pytest.mark.slow
 def test_area_light_is_not_an_occluder_from_behind(backend, tmp_path):
     """A 20 W 1 x 1 m area light 1 m over an albedo-0.5 floor, seen from behind (from above): the
     floor under it shows through, with radiance 0.5 / pi * E (E = 4.789 W/m^2 below the centre,
@@ -154,6 +156,7 @@ def test_plugin_check_works(backend):
     assert backend._has_plugin("diffuse") and not backend._has_plugin("no_such_plugin")
 
 
+@pytest.mark.slow
 def test_sky_sun_direction_agrees_with_cycles(backend):
     """Azimuth 90 puts the sky's brightest horizon towards -X in both backends (IR: azimuth 0 =
     +Y, counter-clockwise seen from above); before the fix Cycles put it towards +X."""

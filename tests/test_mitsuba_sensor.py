@@ -95,6 +95,7 @@ def _centroid(img: np.ndarray, centre: np.ndarray, r: int = 5) -> np.ndarray:
     return np.array([(win * xs).sum(), (win * ys).sum()]) / win.sum()
 
 
+@pytest.mark.slow
 def test_projection_matches_K_non_square(backend, tmp_path):
     """Tiny emissive balls (one scene, far from the principal point in x and y) land at K @ x
     within 0.15 px with fy = 1.1 fx; the square-pixel perspective would be > 1 px off."""
@@ -116,6 +117,7 @@ def test_projection_matches_K_non_square(backend, tmp_path):
             assert square_error > 1.0, (p, square_error)
 
 
+@pytest.mark.slow
 def test_masks_agree_with_annotation_engine(backend, tmp_path):
     """A 10 cm emissive ball (radius ~7 px) rendered with fy != fx: its coverage > 1/2 mask matches the annotation
     engine's (pyrender, exact K) mask up to silhouette pixels, and the centroids agree."""
@@ -155,6 +157,7 @@ def _two_view_scene(backend, tmp_path):
     return _camera((0, -2, 1), (0, 0, 0.2), K), _camera((1.5, -1.2, 0.8), (0, 0, 0.2), K)
 
 
+@pytest.mark.slow
 def test_moving_only_the_sensor_non_square(backend, tmp_path):
     """Same contract as test_mitsuba.py::test_moving_only_the_sensor with the K sensor: the pose
     is an opaque parameter, so a new view compiles no kernel; coming back gives the same image."""
@@ -184,6 +187,7 @@ def test_moving_only_the_sensor_non_square(backend, tmp_path):
     assert np.array_equal(a.linear, a2.linear)
 
 
+@pytest.mark.slow
 def test_determinism_non_square(backend, tmp_path):
     v1, _ = _two_view_scene(backend, tmp_path)
     a = backend.render(v1, _spp(4), seed=11)
@@ -193,6 +197,7 @@ def test_determinism_non_square(backend, tmp_path):
     assert not np.array_equal(a.linear, c.linear)
 
 
+@pytest.mark.slow
 def test_square_pixels_keep_perspective_and_k_sensor_matches_it(backend, tmp_path, monkeypatch):
     """fx == fy renders with Mitsuba's own perspective sensor; the K sensor forced on the same
     camera draws the same samples and gives the same image up to float rounding (same frame, same

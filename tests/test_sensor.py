@@ -197,6 +197,7 @@ def _light_in_view(out):
     return np.array(lights)
 
 
+@pytest.mark.slow
 def test_auto_white_balance_neutralises_a_warm_room_in_a_real_render(tmp_path):
     """Cycles, the built-in room with every light at 2700 K: without AWB the light in view is
     orange; with it, grey surfaces are grey (the measured light is neutral within a few percent)."""
