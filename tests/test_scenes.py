@@ -28,10 +28,21 @@ def test_builtin_scene_names():
     assert {"room", "room2", "kiva"} <= set(scenes.builtin_scenes())
 
 
-@pytest.mark.parametrize("name", ["room", "room2", "kiva"])
-def test_builtin_scene_stages_sit_on_geometry(name, cache, tmp_path):
-    desc = scenes.load_scene(name, tmp_path, cache)
-    assert len(desc.stages) >= 5 and desc.lights and desc.meshes
+# What README.md's "Built-in scenes" promises: a declared stage's height is the surface under its
+# centre within 1 mm; anywhere on any stage the surface is within 4 mm of it (a found stage's level
+# spans 4 mm of height, kiva's bin floors are ribbed). Objects are dropped from above that height.
+DECLARED_TOL = 0.001
+ANYWHERE_TOL = 0.004
+# Every built-in scene, as the code lists it; random_room draws a room per seed (two of them).
+EVERY_SCENE = [(n, None) for n in scenes.builtin_scenes() if n != "random_room"] + [("random_room", 3), ("random_room", 8)]
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # library models with missing maps say so
+@pytest.mark.parametrize(("name", "variant"), EVERY_SCENE, ids=[f"{n}{'' if v is None else v}" for n, v in EVERY_SCENE])
+def test_builtin_scene_stages_sit_on_geometry(name, variant, tmp_path):
+    desc = scenes.load_scene(name, tmp_path, None, clearance=0.5, variant=variant)  # the install's mesh cache
+    declared = scenes.declares_stages(name, tmp_path)
+    assert len(desc.stages) >= (5 if declared else 2) and desc.lights and desc.meshes
     for m in desc.meshes:
         assert Path(m.mesh_path).is_file() and m.obj_id is None
         if m.material.texture:
@@ -40,15 +51,16 @@ def test_builtin_scene_stages_sit_on_geometry(name, cache, tmp_path):
     rng = np.random.default_rng(0)
     for st in desc.stages.values():
         assert st.area > 0.03, st.name
-        # Support surface right under the centroid (and a few random inner points) at `height`:
-        # rays start 3 cm above so a shelf board overhead does not count.
-        pts = [st.centroid] + [st.sample_point(rng) for _ in range(5)]
+        # The surface right under the centroid and 24 random inner points, by rays cast from 3 cm
+        # above (a shelf board overhead does not count).
+        pts = [st.centroid] + [st.sample_point(rng) for _ in range(24)]
         z = procedural.ray_down(world.vertices, world.faces, pts, st.height + 0.03)
-        assert abs(z[0] - st.height) < 0.002, (name, st.name, z[0], st.height)
-        assert np.all(np.abs(z - st.height) < 0.006), (name, st.name, z)  # kiva bin floors slope ~3 mm
+        if declared:
+            assert abs(z[0] - st.height) <= DECLARED_TOL, (name, st.name, z[0], st.height)
+        assert np.all(np.abs(z - st.height) <= ANYWHERE_TOL), (name, st.name, st.height, z)
         # Nothing intrudes into the first 10 cm above the stage (objects must fit).
         above = procedural.ray_down(world.vertices, world.faces, pts, st.height + 0.10)
-        assert np.all(above < st.height + 0.006), (name, st.name, above)
+        assert np.all(above <= st.height + ANYWHERE_TOL), (name, st.name, above)
     # Physically plausible light power (Blender semantics, see scenes.models).
     for light in desc.lights:
         if light.kind == "sun":
