@@ -29,7 +29,8 @@ def _problems(tmp_path, text, *overrides):
 
 def test_huge_image_is_refused_with_its_estimate(tmp_path, monkeypatch):
     (pr,) = _problems(tmp_path, SPEC, "intrinsics={width: 16384, height: 16384, fx: 9000, fy: 9000, cx: 8191.5, cy: 8191.5}")
-    assert pr.path == "intrinsics.width" and "GiB per worker" in pr.message and "SPECSYNTH_MAX_WORKER_GB" in pr.message
+    assert pr.path == "intrinsics.width" and "needs about 50.0 GiB per worker" in pr.message
+    assert "over the limit of 8.0 GiB (set SPECSYNTH_MAX_WORKER_GB" in pr.message
     monkeypatch.setenv("SPECSYNTH_MAX_WORKER_GB", "100")  # overridable
     f = tmp_path / "s.yaml"
     compile_spec(load_spec(f, ["intrinsics={width: 16384, height: 16384, fx: 9000, fy: 9000, cx: 8191.5, cy: 8191.5}"]))
@@ -38,6 +39,7 @@ def test_huge_image_is_refused_with_its_estimate(tmp_path, monkeypatch):
 def test_huge_plan_is_refused(tmp_path):
     (pr,) = _problems(tmp_path, SPEC, "arrangements.count=10000000", "cameras.per_arrangement=100")
     assert pr.path == "arrangements.count" and "1,000,000,000 images planned" in pr.message
+    assert "over the limit of 100,000,000 (set SPECSYNTH_MAX_IMAGES" in pr.message
 
 
 def test_password_file_as_scene_mesh_is_refused_without_echo(tmp_path):
@@ -60,14 +62,16 @@ def test_missing_or_empty_backgrounds_folder_is_located(tmp_path):
 
 
 def test_collision_hull_of_a_huge_mesh_is_bounded():
-    from specsynth.physics import HULL_MAX_POINTS, _convex_hull_vertices
+    """Not refused: the hull of a huge mesh is computed from 200,000 of its vertices, with a warning."""
+    from specsynth.physics import _convex_hull_vertices
 
     rng = np.random.default_rng(0)
-    pts = rng.normal(size=(HULL_MAX_POINTS * 3, 3))
-    pts /= np.linalg.norm(pts, axis=1, keepdims=True)  # a sphere of 600k points: all on the hull
+    pts = rng.normal(size=(600_000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)  # a sphere: every point is on the hull
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         hull = _convex_hull_vertices(pts)
-    assert any("collision hull" in str(w.message) for w in caught)
-    assert len(hull) <= HULL_MAX_POINTS + 14
+    assert [str(w.message) for w in caught if "collision hull" in str(w.message)] == [
+        "collision hull of 600,000 vertices computed from 200,000 of them"]
+    assert len(hull) <= 200_000 + 14
     assert np.allclose(hull.min(0), pts.min(0)) and np.allclose(hull.max(0), pts.max(0))  # extent kept

@@ -171,7 +171,7 @@ def test_validate_refuses_devices_and_huge_files_quickly(tmp_path):
     """`specsynth validate /dev/zero` read forever; a 50 MB list filled memory first."""
     big = tmp_path / "big.yaml"
     big.write_bytes(b"name: t\nobjects: [" + b"1, " * (5 << 20) + b"]\n")
-    for path, message in (("/dev/zero", "not a regular file"), (str(big), "byte limit for a spec")):
+    for path, message in (("/dev/zero", "not a regular file"), (str(big), "over the 4,194,304-byte limit for a spec")):
         with pytest.raises(SpecError) as e:  # (before the fix, /dev/zero never returned)
             load_spec(path)
         assert message in str(e.value.problems[0])
