@@ -282,22 +282,25 @@ def _box(lo, hi):
     return v, np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2 ** 31))
-def test_back_to_back_faces_keep_one_side(seed):
+def _floats(lo, hi):
+    return st.floats(lo, hi, allow_nan=False, allow_subnormal=False)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.tuples(*[_floats(-1, 0)] * 3), st.tuples(*[_floats(0.05, 1.0)] * 3), st.tuples(*[_floats(0.3, 0.7)] * 2))
+def test_back_to_back_faces_keep_one_side(corner, size, at):
     """Faces lying in a surface of the other orientation (the desk top's downward slivers) give
     way; a closed box keeps every face; a zero-thickness sheet keeps exactly one side."""
     from specsynth.assets.meshio import MeshData
     from specsynth.assets.repair import drop_overlapping
 
-    rng = np.random.default_rng(seed)
-    lo = rng.uniform(-1, 0, 3)
-    hi = lo + rng.uniform(0.05, 1.0, 3)
+    lo = np.asarray(corner)
+    hi = lo + np.asarray(size)
     v, f = _box(lo, hi)
     box = MeshData(vertices=v.astype(np.float32), faces=f)
     assert drop_overlapping(box) is box
     # A downward triangle inside the top face (z = hi), like the desk's: it goes, the box stays.
-    c = rng.uniform(lo[:2] + 0.3 * (hi[:2] - lo[:2]), hi[:2] - 0.3 * (hi[:2] - lo[:2]))
+    c = lo[:2] + np.asarray(at) * (hi[:2] - lo[:2])
     r = 0.2 * min(hi[0] - lo[0], hi[1] - lo[1])
     tri = np.array([[c[0], c[1], hi[2]], [c[0] + r, c[1], hi[2]], [c[0], c[1] - r, hi[2]]])  # clockwise from above
     mesh = MeshData(vertices=np.concatenate([v, tri]).astype(np.float32), faces=np.concatenate([f, [[8, 9, 10]]]))
@@ -309,20 +312,24 @@ def test_back_to_back_faces_keep_one_side(seed):
     assert len(kept) == 2 and facing[0] == facing[1]
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2 ** 31))
-def test_box_uvs_project_each_face_along_its_axis_in_metres(seed):
+_corner = st.tuples(*[_floats(-1, 1)] * 3)
+_face = st.lists(st.integers(0, 11), min_size=3, max_size=3, unique=True)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(_corner, min_size=12, max_size=12), st.lists(_face, min_size=1, max_size=10),
+       st.lists(_corner, min_size=12, max_size=12), st.lists(st.tuples(*[st.integers(0, 255)] * 4), min_size=12, max_size=12))
+def test_box_uvs_project_each_face_along_its_axis_in_metres(corners, faces, normals, colours):
     """A mesh without UVs gets them by box projection (a texture given to it then shows, as with
     Blender's generated coordinates): each corner's UV is its position on the two axes other than
     the one its face's normal is closest to; the triangles, normals and colours are unchanged."""
     from specsynth.assets.meshfiles.primitives import with_box_uvs
     from specsynth.assets.meshio import MeshData
 
-    rng = np.random.default_rng(seed)
-    v = rng.uniform(-1, 1, (12, 3)).astype(np.float32)
-    f = np.array([rng.choice(12, 3, replace=False) for _ in range(10)], np.int32)
-    n = rng.normal(size=(12, 3)).astype(np.float32)
-    colors = rng.integers(0, 256, (12, 4)).astype(np.uint8)
+    v = np.asarray(corners, np.float32)
+    f = np.asarray(faces, np.int32)
+    n = np.asarray(normals, np.float32)
+    colors = np.asarray(colours, np.uint8)
     out = with_box_uvs(MeshData(vertices=v, faces=f, normals=n, colors=colors))
     assert with_box_uvs(out) is out
     tri = out.vertices[out.faces].astype(np.float64)

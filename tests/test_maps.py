@@ -25,11 +25,13 @@ def _plane_depth(n: np.ndarray, d: float, K: np.ndarray, w=80, h=60) -> np.ndarr
     return (d / (rays @ n)).astype(np.float32)
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.floats(-0.6, 0.6), st.floats(-0.6, 0.6), st.floats(0.5, 5.0))
-def test_normals_of_a_plane_are_its_normal(nx, ny, dist):
-    n = np.array([nx, ny, -1.0])
-    n /= np.linalg.norm(n)  # facing the camera (-z side)
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 55.0), st.floats(0.0, 360.0), st.floats(0.5, 5.0))
+def test_normals_of_a_plane_are_its_normal(tilt, azimuth, dist):
+    """Planes tilted up to 55 degrees from facing the camera, in any direction: the steepest the
+    camera (32 degrees from its axis to a corner) sees in front of it everywhere, with a margin."""
+    t, a = np.radians(tilt), np.radians(azimuth)
+    n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])  # facing the camera (-z side)
     depth = _plane_depth(-n, dist, K)  # points x with (-n) . x = dist: in front of the camera
     assert (depth > 0).all()
     got = normals_from_depth(depth, K)

@@ -20,7 +20,6 @@ from specsynth.model.ir import MaterialIR, MeshInstance, WorldIR, as_tuple
 from specsynth.physics import (
     ArrangeError,
     _Body,
-    _random_rotation,
     _simulate,
     _World,
     _world_box,
@@ -455,14 +454,23 @@ def test_a_jittering_object_at_rest_counts_as_settled(tmp_path):
     assert settled and steps <= round(0.25 * 240) + 5
 
 
+def _f(lo, hi):
+    return st.floats(lo, hi, allow_nan=False, allow_subnormal=False)
+
+
 @settings(max_examples=200, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), scale=st.floats(0.01, 100.0))
-def test_world_box_contains_every_moved_vertex(seed, scale):
-    rng = np.random.default_rng(seed)
-    v = rng.normal(size=(int(rng.integers(1, 50)), 3)).astype(np.float32)
+@given(vertices=st.lists(st.tuples(*[_f(-3, 3)] * 3), min_size=1, max_size=50),
+       q=st.tuples(*[_f(-1, 1)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1), scale=_f(0.01, 100.0),
+       stretch=st.tuples(*[_f(0.5, 2.0)] * 3), offset=st.tuples(*[_f(-10, 10)] * 3))
+def test_world_box_contains_every_moved_vertex(vertices, q, scale, stretch, offset):
+    v = np.asarray(vertices, np.float32)
+    w, x, y, z = np.asarray(q) / np.linalg.norm(q)
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
     T = np.eye(4)
-    T[:3, :3] = _random_rotation(rng) * scale * rng.uniform(0.5, 2.0, size=3)  # rotation, scale, shear
-    T[:3, 3] = rng.uniform(-10, 10, size=3)
+    T[:3, :3] = R * scale * np.asarray(stretch)  # rotation, scale, shear
+    T[:3, 3] = offset
     moved = v.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
     box = _world_box(v, T)
     tol = 1e-9 * max(1.0, float(np.abs(moved).max()))

@@ -90,9 +90,17 @@ def test_distractors_are_scene_geometry_and_never_annotated(tmp_path):
     assert {i["obj_id"] for v in gt.values() for i in v} <= {1, 2}  # only the dataset objects
     n_objects = {r.arr: len(r.objects) for r in recs}
     assert all(len(v) == n_objects[int(k) // 2] for k, v in gt.items())
-    # The swapped-in textures are credited.
+    # Every swapped-in texture of every arrangement is credited, by name.
+    lib = {str(t.path): t.name for t in textures.available(cache_dir())}
+    worker = Worker(BuildContext(spec=g.spec, spec_dir=f.parent, out=tmp_path / "out"))
+    try:
+        swapped = {lib[m.material.texture] for r in recs for m in worker.render_scene(r).meshes
+                   if m.material.texture in lib}
+    finally:
+        worker.close()
     att = json.loads((tmp_path / "out" / "attribution.json").read_text())
-    assert any(a["asset"].startswith("texture:") for a in att)
+    credited = {a["asset"].removeprefix("texture:") for a in att if a["asset"].startswith("texture:")}
+    assert swapped and swapped <= credited, sorted(swapped - credited)
 
 
 def test_unknown_distractor_is_a_located_error(tmp_path):

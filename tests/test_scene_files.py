@@ -315,7 +315,7 @@ def _panel(yaw: float, x: float, z0: float, z1: float, width: float = 1.2) -> np
     return np.array([[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=50, deadline=None)
 @given(yaw=st.floats(0.0, np.pi), reach=st.floats(0.005, 0.3))
 def test_a_vertical_panel_blocks_the_floor_under_it_even_where_it_barely_reaches_the_slab(yaw, reach):
     """Vertical triangles are spans, not points: a bare panel whose lower edge hangs ``reach``
