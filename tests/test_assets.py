@@ -1,4 +1,4 @@
-"""Asset resolution on real files: the YCB-V BOP subset, pybullet_data built-ins, generic meshes."""
+"""Asset resolution on real files: the installed LM-O models, pybullet_data built-ins, generic meshes."""
 
 from __future__ import annotations
 
@@ -13,12 +13,14 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from specsynth.assets import resolve as assets
+from specsynth.assets.library.cache import cache_dir
+from specsynth.assets.library.realsets import resolve_ref
 from specsynth.assets.meshio import read_mesh
 from specsynth.assets.resolve import AssetError
 from specsynth.spec.models import Material, MeshObject, Objects
 
-# ../shared beside the repository (as in CI).
-YCBV = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycbv_models_subset" / "models"
+# The installed LM-O models (make install): looked up before any test points SPECSYNTH_CACHE elsewhere.
+LMO = resolve_ref("dataset:lmo/models", cache_dir())
 DATA = Path(__file__).parent / "data"
 
 
@@ -36,28 +38,40 @@ def _resolve(objects, spec_dir, cache):
     return out, [str(w.message) for w in caught]
 
 
-@pytest.mark.skipif(not YCBV.is_dir(), reason="shared YCB-V subset not present")
-def test_ycbv_subset_as_is(cache, tmp_path):
-    res, warns = _resolve(Objects(path=str(YCBV)), tmp_path, cache)
-    assert [a.obj_id for a in res] == [1, 2]
-    # The missing textures named in the headers warn (naming the file) and fall back to plain.
-    assert any("obj_000001.png" in w and "missing" in w for w in warns)
-    assert all(a.material.texture is None for a in res)
-    import json
+def _ascii_ply_vertices(path: Path) -> np.ndarray:
+    """The vertex rows of an ASCII PLY, read with numpy alone (x y z nx ny nz r g b a)."""
+    lines = path.read_text().splitlines()
+    end = lines.index("end_header")
+    n = int(next(ln.split()[2] for ln in lines[:end] if ln.startswith("element vertex")))
+    return np.loadtxt(lines[end + 1 : end + 1 + n], dtype=np.float64)
 
-    info = json.loads((YCBV / "models_info.json").read_text())
+
+def test_lmo_models_as_is(cache, tmp_path):
+    """The LM-O models the install provides (BOP PLYs in mm with vertex colours, no
+    models_info.json): metres, colours kept, box and diameter those of the file's own vertices
+    (computed here with scipy) and, for the ape, BOP's published models_info numbers."""
+    from scipy.spatial import ConvexHull
+    from scipy.spatial.distance import pdist
+
+    res, _ = _resolve(Objects(path=str(LMO)), tmp_path, cache)
+    assert [a.obj_id for a in res] == [1, 5, 6, 8, 9, 10, 11, 12]
     for a in res:
+        rows = _ascii_ply_vertices(LMO / f"obj_{a.obj_id:06d}.ply")
+        xyz, rgb = rows[:, :3] / 1000.0, rows[:, 6:9]
+        assert a.material.use_vertex_colors and a.material.texture is None
+        assert a.bbox_min == pytest.approx(xyz.min(0), abs=1e-6)
+        assert a.extents == pytest.approx(xyz.max(0) - xyz.min(0), abs=1e-6)
+        assert a.diameter == pytest.approx(pdist(xyz[ConvexHull(xyz).vertices]).max(), abs=1e-6)
         mesh = read_mesh(a.mesh_path)
-        assert mesh.uv is not None and mesh.normals is not None  # UVs survive for when a texture is added
-        assert 0.0 <= mesh.uv.min() and mesh.uv.max() <= 1.0
-        ref = info[str(a.obj_id)]
-        assert a.diameter == pytest.approx(ref["diameter"] / 1000, rel=2e-3)  # mm -> m
-        assert a.extents == pytest.approx([ref[f"size_{k}"] / 1000 for k in "xyz"], abs=1e-4)
-        assert a.bbox_min == pytest.approx([ref[f"min_{k}"] / 1000 for k in "xyz"], abs=1e-4)
-    # ids subset; names; second resolution is a cache hit that still warns
-    res2, warns2 = _resolve(Objects(path=str(YCBV), ids=[2]), tmp_path, cache)
-    assert [(a.obj_id, a.name) for a in res2] == [(2, "obj_000002")]
-    assert res2[0].mesh_key == res[1].mesh_key and any("missing" in w for w in warns2)
+        assert len(mesh.vertices) >= len(xyz) and mesh.colors is not None
+        assert mesh.vertices.min(0) == pytest.approx(xyz.min(0), abs=1e-5)
+        assert mesh.colors[:, :3].astype(float).mean(0) == pytest.approx(rgb.mean(0), abs=2.0)  # 0-255
+    ape = res[0]
+    assert ape.diameter * 1000 == pytest.approx(102.099, abs=1e-3) and ape.bbox_min[0] * 1000 == pytest.approx(-37.9343, abs=1e-3)
+    # ids subset; names; the second resolution is a cache hit
+    res2, _ = _resolve(Objects(path=str(LMO), ids=[5]), tmp_path, cache)
+    assert [(a.obj_id, a.name) for a in res2] == [(5, "obj_000005")]
+    assert res2[0].mesh_key == res[1].mesh_key
 
 
 def test_bop_folder_errors(cache, tmp_path):
@@ -130,8 +144,7 @@ def test_corrupt_texture_is_an_error_missing_is_a_warning(cache, tmp_path):
 
 
 def test_builtins_metric_and_upright(cache, tmp_path):
-    objs = Objects(path=str(YCBV) if YCBV.is_dir() else None, builtin=["duck", "teddy", "mug", "jenga"],
-                   meshes=[] if YCBV.is_dir() else [MeshObject(path=str(DATA / "cube_mm.ply"), unit="mm")])
+    objs = Objects(path=str(LMO), builtin=["duck", "teddy", "mug", "jenga"])
     res = {a.name: a for a in _resolve(objs, tmp_path, cache)[0]}
     duck, teddy, mug, jenga = (res[n] for n in ("duck", "teddy", "mug", "jenga"))
     assert 0.05 <= duck.diameter <= 0.2 and 0.03 <= teddy.diameter <= 0.3
