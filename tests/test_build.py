@@ -328,7 +328,7 @@ def _first_hit(origin: np.ndarray, dirs: np.ndarray, tris: np.ndarray) -> np.nda
             u = np.einsum("ij,ij->i", s, p) * inv
             v = (q @ d) * inv
             t = np.einsum("ij,ij->i", e2, q) * inv
-        ok = (np.abs(det) > 1e-12) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-6)
+            ok = (np.abs(det) > 1e-12) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-6)
         if ok.any():
             out[i] = t[ok].min()
     return out
