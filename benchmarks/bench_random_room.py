@@ -1,13 +1,14 @@
 """Assembling ``random_room`` rooms in one worker: seconds per room and memory over many rooms.
 
-    .venv/bin/python benchmarks/bench_random_room.py [--rooms 200]
+    .venv/bin/python benchmarks/bench_random_room.py [--rooms 200] [--spec specs/lmo_pbr_h.yaml]
 
 Each room is what an arrangement loads: the generator (catalogue draw, placement, re-dressing),
 furniture unpacked and converted once into the cache (the first rooms pay for new models), the
 normalised meshes, and the stages found. The worker keeps the last two rooms
 (``specsynth.run.worker.PROCEDURAL_KEPT``); this loop does the same. Reported: the first room, the
 median and 90th percentile of the rest, the share of furniture models already in the cache by
-the end, and the resident memory after rooms 10, 50, 100, ... (RSS from /proc).
+the end, and the resident memory after rooms 10, 50, 100, ... (RSS from /proc). With ``--spec``,
+the rooms of that spec's first scene (its room kinds, clutter and stages), else the default kinds.
 """
 
 from __future__ import annotations
@@ -29,15 +30,19 @@ def rss_mb() -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rooms", type=int, default=200)
+    ap.add_argument("--spec", help="take the scene reference (kinds, clutter, stages) from this spec's first scene")
     args = ap.parse_args()
     from specsynth.scenes import load_scene
+    from specsynth.spec.yamlio import load_spec
+
+    ref = load_spec(Path(args.spec)).spec.scenes[0] if args.spec else "random_room"
 
     warnings.simplefilter("ignore")
     kept: list = []
     seconds, rss = [], {}
     for k in range(args.rooms):
         t0 = time.perf_counter()
-        kept.append(load_scene("random_room", Path("."), variant=1000 + k, clearance=0.7))
+        kept.append(load_scene(ref, Path("."), variant=1000 + k, clearance=0.7))
         seconds.append(time.perf_counter() - t0)
         kept = kept[-2:]
         if (k + 1) in (10, 50, 100, 150, 200, 300, 500) or k + 1 == args.rooms:
