@@ -10,12 +10,15 @@ into the texture cache by content, so every backend reads the same pixels.
 from __future__ import annotations
 
 import functools
+import hashlib
+import io
 import os
 from pathlib import Path
 
 import numpy as np
 
 from ..assets import resolve as assets
+from ..atomic import atomic_write_bytes
 from ..assets.library import pmndrs
 from ..assets.meshfiles import bake
 
@@ -48,12 +51,35 @@ def _key(path: Path) -> tuple[str, int, int]:
     return str(path), st.st_size, st.st_mtime_ns
 
 
+DERIVED_VERSION = 1  # bump when a derived map's pixels change for the same inputs
+
+
+def _derived(cache: str, what: str, source: str, *params) -> tuple[Path, bool]:
+    """Where a map derived from ``source`` with ``params`` lives, named by those inputs (the source's
+    bytes, not its path), and whether it is there: a room reloaded by another worker, stage or
+    build finds its maps instead of computing and encoding them again."""
+    key = f"{what} v{DERIVED_VERSION} {assets.file_digest(Path(source))} {params!r}"
+    dest = Path(cache) / "derived" / f"{hashlib.sha256(key.encode()).hexdigest()}.png"
+    return dest, dest.is_file()
+
+
+def _store(image, dest: Path) -> str:
+    buf = io.BytesIO()
+    image.save(buf, format="PNG", compress_level=1)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(dest, buf.getvalue())
+    return str(dest)
+
+
 @functools.lru_cache(maxsize=256)
 def _scaled(key: tuple, strength: float, cache: str) -> str:
     from PIL import Image
 
+    dest, done = _derived(cache, "normal", key[0], strength)
+    if done:
+        return str(dest)
     with Image.open(key[0]) as im:
-        return str(bake.store_png(bake.scaled_normal_map(im, strength, key[0]), Path(cache)))
+        return _store(bake.scaled_normal_map(im, strength, key[0]).convert("RGB"), dest)
 
 
 def normal_texture(path: Path, strength: float, cache: Path) -> str:
@@ -79,11 +105,14 @@ def _relief(image) -> np.ndarray:
 def _roughness(key: tuple, base: float, variation: float, cache: str) -> str:
     from PIL import Image
 
+    dest, done = _derived(cache, "roughness", key[0], base, variation, MAP_SIZE)
+    if done:
+        return str(dest)
     with Image.open(key[0]) as im:
         im.draft("RGB", (MAP_SIZE, MAP_SIZE))
         small = im.convert("RGB").resize((min(MAP_SIZE, im.width), min(MAP_SIZE, im.height)), Image.BILINEAR)
     r = np.clip(base + variation * (2.0 * _relief(small) - 1.0), 0.0, 1.0)
-    return str(bake.store_png(bake.grey(r), Path(cache)))
+    return _store(bake.grey(r), dest)
 
 
 def roughness_texture(source: Path, base: float, variation: float, cache: Path) -> str:
