@@ -30,38 +30,9 @@ GENERATED = PROCEDURAL + FIXED_ROOMS
 from ..spec.models import DatasetSpec
 from ..spec.yamlio import LoadedSpec, SpecError
 from . import keys, seeds
+from .inputs import BuildInputs, stage_of_field  # noqa: F401 (stage_of_field: the docs' reference)
 
 STAGES = ("arrange", "view", "render")
-
-# Which spec fields (dotted paths) each stage reads. A change anywhere else never re-runs it.
-STAGE_FIELDS = {
-    "arrange": ("seed", "objects", "scenes", "arrangements"),
-    "view": ("cameras", "visibility", "intrinsics"),
-    "render": (
-        "quality",
-        "backend",
-        "intrinsics",
-        "visibility.delta",
-        "outputs.image_format",
-        "outputs.jpeg_quality",
-        "outputs.depth",
-        "outputs.depth_scale",
-        "outputs.masks",
-        "outputs.exr",
-        "outputs.normals",
-        "outputs.nocs",
-        "outputs.albedo",
-        "sensor",
-    ),
-}
-
-def stage_of_field(dotted: str) -> str | None:
-    """The first stage whose jobs read a spec field (every later stage re-runs with it); None for
-    fields that only shape the written dataset (names, formats, metadata)."""
-    for stage, fields in STAGE_FIELDS.items():
-        if any(dotted == f or dotted.startswith(f + ".") or f.startswith(dotted + ".") for f in fields):
-            return stage
-    return None
 
 
 # Guards on work and memory, checked before anything runs (overridable: the estimate is rough).
@@ -141,13 +112,6 @@ def backend_fingerprint(name: str) -> str:
     return backend_plugin(name).fingerprint()
 
 
-def _field(data: dict, dotted: str):
-    cur = data
-    for part in dotted.split("."):
-        cur = cur[part]
-    return cur
-
-
 def _folder_listing_digest(folder: Path, base: Path) -> str:
     """Names, sizes and mtimes of a folder's files: cheap, and changes when a photo changes."""
     root = folder if folder.is_absolute() else base / folder
@@ -159,8 +123,9 @@ def _folder_listing_digest(folder: Path, base: Path) -> str:
 
 @dataclass(frozen=True)
 class JobGraph:
-    spec: DatasetSpec
+    spec: DatasetSpec  # read by planning and the merge in the main process; workers get ``inputs``
     spec_path: Path
+    inputs: BuildInputs
     stage_inputs: dict[str, dict[str, str]]  # stage -> input name -> digest (for diff attribution)
     stage_digests: dict[str, str]
     asset_hashes: dict[str, str]
@@ -237,6 +202,22 @@ def principal_point_note(intr) -> str | None:
             f"{intr.width} x {intr.height} image; when changing width and height, scale fx, fy, cx and cy too")
 
 
+def _input_folders(spec: DatasetSpec, loaded: LoadedSpec) -> dict[str, str]:
+    """The listing digest of every folder the backend's options name (photographs, HDRIs)."""
+    found = {}
+    for option, folder in spec.backend.input_folders().items():
+        try:
+            root = expand_path(folder, loaded.directory, f"backend.{option}")
+        except AssetError as e:
+            raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
+        if not root.is_dir():
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} not found ({root})")])
+        if not any(p.is_file() for p in root.rglob("*")):
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
+        found[f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
+    return found
+
+
 def compile_spec(loaded: LoadedSpec) -> JobGraph:
     """Resolve asset and scene fingerprints and derive the per-stage input digests."""
     spec = loaded.spec
@@ -286,29 +267,21 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     if problems:
         raise SpecError(problems)
 
-    stage_inputs: dict[str, dict[str, str]] = {}
-    for stage, fields in STAGE_FIELDS.items():
-        inputs = {f"spec:{f}": keys.digest(_field(data, f)) for f in fields}
-        stage_inputs[stage] = inputs
-    stage_inputs["arrange"].update(asset_hashes)
-    stage_inputs["view"]["annotator"] = f"pyrender {dist_version('pyrender')}"
+    inputs = BuildInputs.of(spec)
     backend = backend_fingerprint(spec.backend.name)
-    stage_inputs["render"]["backend"] = backend
-    for option, folder in spec.backend.input_folders().items():
-        try:
-            root = expand_path(folder, loaded.directory, f"backend.{option}")
-        except AssetError as e:
-            raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
-        if not root.is_dir():
-            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} not found ({root})")])
-        if not any(p.is_file() for p in root.rglob("*")):
-            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
-        stage_inputs["render"][f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
-    stage_digests = {s: keys.stage_digest(s, inp) for s, inp in stage_inputs.items()}
+    extra = {"arrange": dict(asset_hashes), "view": {"annotator": f"pyrender {dist_version('pyrender')}"},
+             "render": {"backend": backend, **_input_folders(spec, loaded)}}
+    # A stage's key: the digest of its whole inputs model, and what it reads besides the spec.
+    stage_digests = {s: keys.stage_digest(s, {"inputs": keys.digest(getattr(inputs, s).model_dump(mode="json")),
+                                              **extra[s]}) for s in STAGES}
+    # Which of its inputs changed, field by field, for ``diff``.
+    stage_inputs = {s: {**{k: keys.digest(v) for k, v in getattr(inputs, s).digest_parts().items()}, **extra[s]}
+                    for s in STAGES}
     stage_inputs["arrange"].update(scene_hashes)  # for diff attribution; keyed per job (arrange_job)
     return JobGraph(
         spec=spec,
         spec_path=loaded.path,
+        inputs=inputs,
         stage_inputs=stage_inputs,
         stage_digests=stage_digests,
         asset_hashes={**asset_hashes, **scene_hashes},

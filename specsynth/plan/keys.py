@@ -1,8 +1,8 @@
 """Content keys: what a job's output depends on, hashed.
 
 A key is the sha256 of canonical JSON of exactly the resolved inputs a job reads: named input
-digests shared by all jobs of a stage (spec fields by dotted path, asset hashes, backend version,
-the stage's code version), the upstream job's key, and the job id.
+digests shared by all jobs of a stage (its inputs model, ``specsynth.plan.inputs``; asset hashes,
+backend version, the stage's code version), the upstream job's key, and the job id.
 """
 
 from __future__ import annotations
