@@ -51,7 +51,7 @@ def main() -> None:
             f = Path(d) / "s.yaml"
             f.write_text(spec_text(scene, args.n, lmo=args.objects == "lmo"))
             graph = compile_spec(load_spec(f))
-            w = Worker(BuildContext(spec=graph.spec, spec_dir=Path(d), out=Path(d) / "out"))
+            w = Worker(BuildContext(inputs=graph.inputs, spec_dir=Path(d), out=Path(d) / "out"))
             w.assets()  # asset conversion is not physics
             for a in range(min(2, args.n)):  # scene load and collision shapes are per-process costs
                 w.scene(graph.spec.scenes[0])
@@ -59,7 +59,7 @@ def main() -> None:
             for arr in range(args.n):
                 job = graph.arrange_job(arr)
                 t0 = time.process_time()
-                run_arrange(w, job)
+                run_arrange(w, graph.inputs.arrange, job)
                 cpu.append(time.process_time() - t0)
                 rec = w.store.load("arrange", job.key)
                 dropped += rec["dropped"]

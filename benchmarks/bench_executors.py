@@ -129,7 +129,7 @@ def main() -> None:
     sizes = (args.arrangements, 2 * args.arrangements)
     runs: dict[tuple[str, int], list] = {}
     with tempfile.TemporaryDirectory() as d:
-        ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=Path(d) / "ctx")
+        ctx = BuildContext(inputs=graph.inputs, spec_dir=graph.spec_path.parent, out=Path(d) / "ctx")
         spec = Path(d) / "spec.yaml"
         spec.write_text((ROOT / "specs/demo.yaml").read_text())
         # Rounds: every configuration once per round, so a slow minute of this shared VM hits a

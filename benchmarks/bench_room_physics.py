@@ -23,6 +23,7 @@ from specsynth import physics
 from specsynth.assets import meshio
 from specsynth.plan import seeds
 from specsynth.plan.compiler import compile_spec
+from specsynth.plan.inputs import BuildInputs
 from specsynth.run import arrange as arrange_step
 from specsynth.run.worker import BuildContext, Worker
 from specsynth.spec.yamlio import load_spec
@@ -60,13 +61,13 @@ def main() -> None:
         physics.box_meets_region = lambda box, region: True
         physics.faces_in_region = lambda v, f, region: f
     with tempfile.TemporaryDirectory() as out:
-        w = Worker(BuildContext(spec=spec, spec_dir=graph.spec_path.parent, out=Path(out)))
+        w = Worker(BuildContext(inputs=BuildInputs.of(spec), spec_dir=graph.spec_path.parent, out=Path(out)))
         results = []
         for arr in range(graph.n_arrangements):
             job, _, _ = graph.arrangement_jobs(arr)
             room = w.scene(spec.scenes[0], seeds.job_seed(spec.seed, f"{job.id}/scene"))  # assembled, untimed
             faces[1] += sum(len(meshio.read_mesh(m.mesh_path).faces) for m in room.collider_meshes())
-            results.append(arrange_step.run_arrange(w, job))
+            results.append(arrange_step.run_arrange(w, w.ctx.inputs.arrange, job))
         w.close()
     print(f"{len(seconds)} arrangements of specs/demo.yaml, {'all' if args.all_colliders else 'near-stage'} colliders")
     print(f"physics.arrange s: median {statistics.median(seconds):.3f}, p90 {np.percentile(seconds, 90):.3f}, "

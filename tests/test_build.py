@@ -111,7 +111,7 @@ def test_camera_change_reruns_only_views_and_renders(built, spec_file, tmp_path)
         "render": {j.id: j.key for j in g2.jobs() if j.stage == "render"},
     }})
     assert d["arrange"]["modified"] == 0
-    assert d["view"]["modified"] == 6 and "spec:cameras" in d["view"]["causes"]
+    assert d["view"]["modified"] == 6 and "spec:cameras.distance" in d["view"]["causes"]
     assert "upstream:view" in d["render"]["causes"]
 
 
@@ -274,7 +274,7 @@ def test_workers_use_one_blas_thread_and_give_it_back(spec_file, tmp_path):
 
     before = blas()
     g = graph(spec_file)
-    ctx = BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path, threads=2)
+    ctx = BuildContext(inputs=g.inputs, spec_dir=spec_file.parent, out=tmp_path, threads=2)
     init_worker(ctx)
     try:
         assert blas() and all(n == 1 for n in blas().values())
@@ -375,7 +375,7 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
     out = tmp_path / "out"
     build(g, out, jobs=1, until="view")
     store = Store(out)
-    worker = Worker(BuildContext(spec=g.spec, spec_dir=spec.parent, out=out))
+    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=spec.parent, out=out))
     ann = Annotator(W, H)
     checked = compared = 0
     try:

@@ -78,7 +78,7 @@ def test_distractors_are_scene_geometry_and_never_annotated(tmp_path):
     recs = [ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange")]
     assert sum(len(r.distractors) for r in recs) >= 4  # 8 dropped; a few may leave the stage
     assert all(d.name == "teddy" or d.name.startswith("random_urdfs/") for r in recs for d in r.distractors)
-    worker = Worker(BuildContext(spec=g.spec, spec_dir=f.parent, out=tmp_path / "out"))
+    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=f.parent, out=tmp_path / "out"))
     try:
         scene = worker.render_scene(recs[0])
         extra = [m for m in scene.meshes if m.name.startswith("distractor_")]
@@ -92,7 +92,7 @@ def test_distractors_are_scene_geometry_and_never_annotated(tmp_path):
     assert all(len(v) == n_objects[int(k) // 2] for k, v in gt.items())
     # Every swapped-in texture of every arrangement is credited, by name.
     lib = {str(t.path): t.name for t in textures.available(cache_dir())}
-    worker = Worker(BuildContext(spec=g.spec, spec_dir=f.parent, out=tmp_path / "out"))
+    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=f.parent, out=tmp_path / "out"))
     try:
         swapped = {lib[m.material.texture] for r in recs for m in worker.render_scene(r).meshes
                    if m.material.texture in lib}
@@ -195,7 +195,7 @@ def test_a_distractor_drawn_twice_is_dropped_twice_by_a_cold_worker(tmp_path):
     f = tmp_path / "dr.yaml"
     f.write_text(SPEC)
     g = compile_spec(load_spec(f))
-    worker = Worker(BuildContext(spec=g.spec, spec_dir=f.parent, out=tmp_path / "out"))
+    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=f.parent, out=tmp_path / "out"))
     try:
         assets = worker.distractor_assets(["teddy", "random_urdfs/007", "teddy"])
         assert [a.name for a in assets] == ["teddy", "random_urdfs/007", "teddy"] and assets[0] is assets[2]

@@ -207,7 +207,7 @@ def test_local_cluster_workers_get_specsynth_dask_settings(spec_file, tmp_path):
     from specsynth.run.tasks import BuildContext
 
     g = compile_spec(load_spec(spec_file))
-    ex = DaskExecutor(BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path), jobs=2)
+    ex = DaskExecutor(BuildContext(inputs=g.inputs, spec_dir=spec_file.parent, out=tmp_path), jobs=2)
     try:
         assert list(ex.client.run(_settings_probe()).values()) == [SPECSYNTH_DASK] * 2
     finally:
@@ -254,7 +254,7 @@ def test_local_workers_split_the_cores_unless_told(spec_file, tmp_path):
     from specsynth.run.tasks import BuildContext, available_cores
 
     g = compile_spec(load_spec(spec_file))
-    ctx = BuildContext(spec=g.spec, spec_dir=spec_file.parent, out=tmp_path)
+    ctx = BuildContext(inputs=g.inputs, spec_dir=spec_file.parent, out=tmp_path)
     for jobs, given, expected in ((2, 0, max(1, available_cores() // 2)), (2, 3, 3), (1, 0, 0)):  # 0: all cores
         ex = LocalExecutor(replace(ctx, threads=given), jobs=jobs)
         try:

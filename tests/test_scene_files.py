@@ -212,7 +212,7 @@ def _masks_agree_with_cycles_rerender(byo: Path, out: Path) -> None:
     from specsynth.spec.yamlio import load_spec
 
     graph = compile_spec(load_spec(byo / "spec.yaml", ["arrangements.count=1", "cameras.per_arrangement=2"]))
-    worker = Worker(BuildContext(spec=graph.spec, spec_dir=byo, out=out))
+    worker = Worker(BuildContext(inputs=graph.inputs, spec_dir=byo, out=out))
     jobs = json.loads((out / ".specsynth" / "manifest.json").read_text())["jobs"]
     cyc = CyclesBackend({"name": "cycles"}, threads=2)
     compared = 0

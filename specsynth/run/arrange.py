@@ -11,38 +11,38 @@ from ..assets.resolve import ObjectAsset, catalogue_objects
 from ..model.records import ArrangementRecord, PlacedObject
 from ..plan import seeds
 from ..plan.compiler import Job
+from ..plan.inputs import ArrangeInputs
 from ..scenes import procedural_name
 from ..spec.models import SceneRef
 from .worker import Worker
 
 
-def run_arrange(w: Worker, job: Job) -> dict[str, Any]:
+def run_arrange(w: Worker, inp: ArrangeInputs, job: Job) -> dict[str, Any]:
     """Settle one arrangement (cached when its record exists) -> a summary for the build."""
     from ..physics import arrange
 
     if w.store.has("arrange", job.key):
         return {"id": job.id, "cached": True}
-    spec = w.spec
-    index, rng = seeds.scene_draw(spec.seed, job.id, [s.weight for s in spec.scenes])
-    ref = spec.scenes[index]
-    variant = seeds.job_seed(spec.seed, f"{job.id}/scene") if procedural_name(ref) else None
+    index, rng = seeds.scene_draw(inp.seed, job.id, [s.weight for s in inp.scenes])
+    ref = inp.scenes[index]
+    variant = seeds.job_seed(inp.seed, f"{job.id}/scene") if procedural_name(ref) else None
     scene = w.scene(ref, variant)
     names = list(scene.stages) if ref.stages else sorted(scene.stages)  # the scene holds the ones asked for
     stage = scene.stages[names[draw_stage([scene.stages[n].weight for n in names], rng)]]
 
     models = w.assets()
-    if spec.objects.models_per_arrangement is not None:
-        lo, hi = spec.objects.models_per_arrangement
+    if inp.objects.models_per_arrangement is not None:
+        lo, hi = inp.objects.models_per_arrangement
         k = min(int(rng.integers(lo, hi + 1)), len(models))
         chosen = sorted(rng.choice(len(models), size=k, replace=False))
         models = [models[i] for i in chosen]
-    lo, hi = spec.objects.instances
+    lo, hi = inp.objects.instances
     drop: list[ObjectAsset] = []
     for m in models:
         drop += [m] * int(rng.integers(lo, hi + 1))
 
-    distractors = w.distractor_assets(draw_distractors(spec.arrangements.distractors, rng))
-    result = arrange(scene, stage, drop + distractors, spec.arrangements, spec.objects.orientation, rng)
+    distractors = w.distractor_assets(draw_distractors(inp.arrangements.distractors, rng))
+    result = arrange(scene, stage, drop + distractors, inp.arrangements, inp.objects.orientation, rng)
     targets = [(i, pose) for i, pose in result.placed if i < len(drop)]
     placed = [
         PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
@@ -52,9 +52,9 @@ def run_arrange(w: Worker, job: Job) -> dict[str, Any]:
         PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
         for n, (i, pose) in enumerate((i, pose) for i, pose in result.placed if i >= len(drop))
     ]
-    if spec.arrangements.distractors.annotate:  # objects like the others, after them in gt order
+    if inp.arrangements.distractors.annotate:  # objects like the others, after them in gt order
         n_obj = len(w.assets())
-        placed += [PlacedObject(obj_id=spec.arrangements.distractors.obj_id(o.name, n_obj), inst=len(placed) + k,
+        placed += [PlacedObject(obj_id=inp.arrangements.distractors.obj_id(o.name, n_obj), inst=len(placed) + k,
                                 name=o.name, pose=o.pose) for k, o in enumerate(others)]
         others = []
     rec = ArrangementRecord(

@@ -202,6 +202,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
               ladder: bool = False, only: tuple[str, ...] = ()) -> list[Row]:
     from ..outputs.images import write_png
+    from ..plan.inputs import BuildInputs
     from .worker import BuildContext, Worker
 
     out = Path(out)
@@ -229,7 +230,8 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             continue
         # The spec's own options for this backend, minus what the bench varies (denoise, samples).
         base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
-        worker = Worker(BuildContext(spec=spec.model_copy(update={"intrinsics": small}), spec_dir=graph.spec_path.parent, out=out))
+        worker = Worker(BuildContext(inputs=BuildInputs.of(spec.model_copy(update={"intrinsics": small})),
+                                     spec_dir=graph.spec_path.parent, out=out))
         refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
         settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it

@@ -448,7 +448,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     with output_lock(out):
         store = Store(out)
         store.clean_tmp()
-        ctx = BuildContext(spec=graph.spec, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads or 0)
+        ctx = BuildContext(inputs=graph.inputs, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads or 0)
         ex = load_executor(executor)(ctx, jobs=jobs, address=address)
         workers = max(1, getattr(ex, "workers", jobs))
         try:

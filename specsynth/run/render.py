@@ -17,13 +17,13 @@ from ..model.ir import RenderResult, RenderScene
 from ..model.records import ArrangementRecord, ImageRecord, ViewRecord
 from ..plan import seeds
 from ..plan.compiler import Job
+from ..plan.inputs import RenderedFiles, RenderInputs
 from ..views.sensor import jpeg_quality, sensor_depth, sensor_rgb
 from .worker import Worker
 
 
-def run_renders(w: Worker, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
+def run_renders(w: Worker, inp: RenderInputs, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
     """Render each accepted view of one arrangement: files and record committed to the store together."""
-    spec = w.spec
     arr = ArrangementRecord.from_json(w.store.load("arrange", arrange_key))
     scene, origin = w.frame(arr)
     backend = w.backend()
@@ -31,8 +31,8 @@ def run_renders(w: Worker, arrange_key: str, pairs: list[tuple[Job, Job]]) -> li
     load_seconds = w.load("backend", arrange_key, scene) + w.load("annotator", arrange_key, scene)
     load_phase = load_seconds
     occluders = "scene" if w.draws_scene else "objects"
-    preset = spec.quality.resolved()
-    ctx = _Render(arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds,
+    preset = inp.quality.resolved()
+    ctx = _Render(inp, arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds,
                   w.assets_by_id(arr))
     out = []
     for view_job, job in pairs:
@@ -41,7 +41,7 @@ def run_renders(w: Worker, arrange_key: str, pairs: list[tuple[Job, Job]]) -> li
         view = ViewRecord.from_json(w.store.load("view", view_job.key))
         wd = w.store.begin()
         rec = render_eye(w, wd, job, view, view.t_w2c, ctx, load_phase)
-        stereo = spec.cameras.stereo
+        stereo = inp.stereo
         if stereo is not None:  # the right eye: the rig moved by the baseline along the camera's x
             t_right = (np.asarray(view.t_w2c, np.float64) - [stereo.baseline, 0.0, 0.0]).tolist()
             (wd / "right").mkdir()
@@ -59,24 +59,24 @@ def run_renders(w: Worker, arrange_key: str, pairs: list[tuple[Job, Job]]) -> li
 def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Render, load_phase: float) -> ImageRecord:
     """One camera's image of the arrangement, its files written into ``wd``: render, annotate,
     lens and sensor, outputs; -> its record (both eyes of a stereo rig share the job's seed)."""
-    spec, warp = w.spec, w.lens_warp()
+    inp, warp = ctx.inp, w.lens_warp()
     cam = w.camera(view.R_w2c, t_w2c, ctx.origin)
     cam_r = lens.render_camera(cam, warp) if warp else cam
-    if spec.cameras.depth_of_field is not None:
-        cam_r = focused(w, cam_r, ctx.scene, view.focus_inst, job)
-    if spec.cameras.motion_blur is not None:
-        cam_r = replace(cam_r, motion=camera_motion(spec.cameras.motion_blur, seeds.job_seed(spec.seed, f"{job.id}/motion")))
+    if inp.depth_of_field is not None:
+        cam_r = focused(inp, cam_r, ctx.scene, view.focus_inst, job)
+    if inp.motion_blur is not None:
+        cam_r = replace(cam_r, motion=camera_motion(inp.motion_blur, seeds.job_seed(inp.arrange.seed, f"{job.id}/motion")))
     t1 = time.perf_counter()
-    res = ctx.backend.render(cam_r, ctx.preset, job.seed, clamp=spec.quality.clamp)
+    res = ctx.backend.render(cam_r, ctx.preset, job.seed, clamp=inp.quality.clamp)
     seconds = time.perf_counter() - t1
     if res.linear is not None:
-        check_finite(res.linear, f"{spec.backend.name} render of {job.id}")
+        check_finite(res.linear, f"{inp.backend.name} render of {job.id}")
     t2 = time.perf_counter()
     if warp:
-        ann = ctx.annot.annotate_lens(cam, warp, spec.intrinsics.distortion, spec.visibility.delta, ctx.occluders)
+        ann = ctx.annot.annotate_lens(cam, warp, inp.intrinsics.distortion, inp.visibility_delta, ctx.occluders)
         res = through_lens(res, warp)
     else:
-        ann = ctx.annot.annotate(cam, spec.visibility.delta, ctx.occluders)
+        ann = ctx.annot.annotate(cam, inp.visibility_delta, ctx.occluders)
     t3 = time.perf_counter()
     files = write_image(w, wd, job, res, ann, cam, cam_r, ctx)
     stats = dict(res.stats)
@@ -85,10 +85,10 @@ def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Ren
                                     annotate=t3 - t2, encode=time.perf_counter() - t3)
     return ImageRecord(
         arr=job.arr, cam=job.cam, index=view.index, scene=ctx.arr.scene, stage=ctx.arr.stage,
-        backend=spec.backend.name, backend_version=ctx.backend.version(), quality=spec.quality.level,
+        backend=inp.backend.name, backend_version=ctx.backend.version(), quality=inp.quality.level,
         seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
         R_w2c=view.R_w2c, t_w2c=list(t_w2c), instances=ann.instances, render_seconds=seconds, stats=stats,
-        **files, distortion=list(spec.intrinsics.distortion) if warp else None,
+        **files, distortion=list(inp.intrinsics.distortion) if warp else None,
     )
 
 
@@ -98,33 +98,33 @@ def write_image(w: Worker, wd: Path, job: Job, res, ann, cam, cam_r, ctx: _Rende
     from ..outputs.coco import write_visible_rles
     from ..outputs.images import encode_depth, write_exr, write_jpg, write_mask, write_png
 
-    spec, warp = w.spec, w.lens_warp()
-    ext = spec.outputs.image_format
+    inp, warp = ctx.inp, w.lens_warp()
+    ext = inp.outputs.image_format
     rgb_file = f"rgb.{ext}"
     rng_rgb, rng_jpeg, rng_depth = (np.random.default_rng(ss) for ss in np.random.SeedSequence(
-        seeds.job_seed(spec.seed, f"{job.id}/sensor")).spawn(3))
+        seeds.job_seed(inp.arrange.seed, f"{job.id}/sensor")).spawn(3))
     albedo8 = None
-    if spec.outputs.albedo or spec.sensor.auto_white_balance:
+    if inp.outputs.albedo or inp.sensor.auto_white_balance:
         albedo8 = w.albedo(ctx.arrange_key, ctx.scene).render(cam_r)
         albedo8 = lens.remap_nearest(albedo8, warp) if warp else albedo8
-    rgb = sensor_rgb(res.linear, res.rgb, spec.sensor, rng_rgb, albedo8)
+    rgb = sensor_rgb(res.linear, res.rgb, inp.sensor, rng_rgb, albedo8)
     if ext == "jpg":
-        write_jpg(wd / rgb_file, rgb, jpeg_quality(spec.sensor, spec.outputs.jpeg_quality, rng_jpeg))
+        write_jpg(wd / rgb_file, rgb, jpeg_quality(inp.sensor, inp.outputs.jpeg_quality, rng_jpeg))
     else:
         write_png(wd / rgb_file, rgb)
-    depth_file, scale = None, spec.outputs.depth_scale
-    if spec.outputs.depth:
-        depth16, scale = encode_depth(ann.depth, spec.outputs.depth_scale)
+    depth_file, scale = None, inp.outputs.depth_scale
+    if inp.outputs.depth:
+        depth16, scale = encode_depth(ann.depth, inp.outputs.depth_scale)
         depth_file = "depth.png"
         write_png(wd / depth_file, depth16)
     if scale == "auto":
         scale = 1.0
     depth_noisy_file = None
-    if spec.outputs.depth and spec.sensor.depth is not None:
+    if inp.outputs.depth and inp.sensor.depth is not None:
         depth_noisy_file = "depth_noisy.png"
-        write_png(wd / depth_noisy_file, encode_depth(sensor_depth(ann.depth, spec.sensor.depth, rng_depth), scale)[0])
+        write_png(wd / depth_noisy_file, encode_depth(sensor_depth(ann.depth, inp.sensor.depth, rng_depth), scale)[0])
     masks, masks_visib = [], []
-    if spec.outputs.masks:
+    if inp.outputs.masks:
         for gt, (m, mv) in enumerate(zip(ann.masks, ann.masks_visib)):
             masks.append(f"mask_{gt:06d}.png")
             masks_visib.append(f"mask_visib_{gt:06d}.png")
@@ -132,12 +132,12 @@ def write_image(w: Worker, wd: Path, job: Job, res, ann, cam, cam_r, ctx: _Rende
             write_mask(wd / masks_visib[-1], mv)
         write_visible_rles(wd, ann.masks_visib)
     exr_file = None
-    if spec.outputs.exr and res.linear is not None:
+    if inp.outputs.exr and res.linear is not None:
         exr_file = "rgb.exr"
         write_exr(wd / exr_file, res.linear)
-    normals_file, nocs_file = geometry_maps(w, wd, cam, ann, ctx.by_id)
+    normals_file, nocs_file = geometry_maps(w, inp.outputs, wd, cam, ann, ctx.by_id)
     albedo_file = None
-    if spec.outputs.albedo:
+    if inp.outputs.albedo:
         albedo_file = "albedo.png"
         write_png(wd / albedo_file, albedo8)
     return dict(rgb_file=rgb_file, depth_file=depth_file, depth_scale=float(scale), mask_files=masks,
@@ -145,12 +145,11 @@ def write_image(w: Worker, wd: Path, job: Job, res, ann, cam, cam_r, ctx: _Rende
                 depth_noisy_file=depth_noisy_file, albedo_file=albedo_file)
 
 
-def geometry_maps(w: Worker, wd: Path, cam, ann, by_id: dict[int, ObjectAsset]) -> tuple[str | None, str | None]:
+def geometry_maps(w: Worker, out: RenderedFiles, wd: Path, cam, ann, by_id: dict[int, ObjectAsset]) -> tuple[str | None, str | None]:
     """normals.exr and nocs.exr from the annotation's depth, when the spec asks for them."""
     from ..annotate.maps import nocs_map, normals_from_depth
     from ..outputs.images import write_exr
 
-    out = w.spec.outputs
     warp = w.lens_warp()
     rays = warp.rays if warp else None  # through a lens, each pixel's own ray instead of K
     normals_file = nocs_file = None
@@ -165,11 +164,11 @@ def geometry_maps(w: Worker, wd: Path, cam, ann, by_id: dict[int, ObjectAsset]) 
     return normals_file, nocs_file
 
 
-def focused(w: Worker, cam, scene: RenderScene, focus_inst: int, job: Job):
+def focused(inp: RenderInputs, cam, scene: RenderScene, focus_inst: int, job: Job):
     """``cam`` with its thin lens: an aperture drawn for this image, focused on the centre of
     the object the camera aims at (its model origin, BOP's bounding-box centre)."""
-    dof = w.spec.cameras.depth_of_field
-    rng = np.random.default_rng(seeds.job_seed(w.spec.seed, f"{job.id}/lens"))
+    dof = inp.depth_of_field
+    rng = np.random.default_rng(seeds.job_seed(inp.arrange.seed, f"{job.id}/lens"))
     aperture_m = float(rng.uniform(*dof.aperture)) / 1000.0
     jitter = float(rng.uniform(-dof.focus_jitter, dof.focus_jitter))
     focus = next((o for o in scene.objects() if o.inst == focus_inst), None)
@@ -181,6 +180,7 @@ def focused(w: Worker, cam, scene: RenderScene, focus_inst: int, job: Job):
 class _Render:
     """What every image of one render call shares."""
 
+    inp: RenderInputs
     arr: ArrangementRecord
     scene: RenderScene
     origin: Any

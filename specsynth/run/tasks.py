@@ -99,13 +99,17 @@ def timed(fn, *args):
     return time.perf_counter() - t0, res, (os.getpid(), start), told
 
 
+# Each step gets its own stage's inputs (``specsynth.plan.inputs``), never the whole spec.
 def task_arrange(out: str, job: Job):
-    return run_arrange(current_worker(out), job)
+    w = current_worker(out)
+    return run_arrange(w, w.ctx.inputs.arrange, job)
 
 
 def task_views(out: str, arrange_key: str, jobs: list[Job]):
-    return run_views(current_worker(out), arrange_key, jobs)
+    w = current_worker(out)
+    return run_views(w, w.ctx.inputs.view, arrange_key, jobs)
 
 
 def task_renders(out: str, arrange_key: str, pairs: list[tuple[Job, Job]]):
-    return run_renders(current_worker(out), arrange_key, pairs)
+    w = current_worker(out)
+    return run_renders(w, w.ctx.inputs.render, arrange_key, pairs)

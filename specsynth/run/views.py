@@ -11,13 +11,13 @@ import numpy as np
 from ..model.records import ArrangementRecord, ViewRecord
 from ..plan import seeds
 from ..plan.compiler import Job
+from ..plan.inputs import ViewInputs
 from ..views import cameras
 from .worker import Worker
 
 
-def run_views(w: Worker, arrange_key: str, jobs: list[Job]) -> list[dict[str, Any]]:
+def run_views(w: Worker, inp: ViewInputs, arrange_key: str, jobs: list[Job]) -> list[dict[str, Any]]:
     """Find a camera for each view job of one arrangement and store its record (accepted or not)."""
-    spec = w.spec
     arr = ArrangementRecord.from_json(w.store.load("arrange", arrange_key))
     scene, origin = w.frame(arr)
     objects = scene.objects()
@@ -30,22 +30,22 @@ def run_views(w: Worker, arrange_key: str, jobs: list[Job]) -> list[dict[str, An
     for job in jobs:
         if w.store.has("view", job.key):  # finished before a retry
             continue
-        rng = seeds.job_rng(spec.seed, job.id)
-        rec = ViewRecord(arr=job.arr, cam=job.cam, index=job.arr * spec.cameras.per_arrangement + job.cam,
+        rng = seeds.job_rng(inp.arrange.seed, job.id)
+        rec = ViewRecord(arr=job.arr, cam=job.cam, index=job.arr * inp.cameras.per_arrangement + job.cam,
                          accepted=False, tries=0, seed=job.seed)
         rejected = 0.0
-        for _ in range(spec.cameras.max_tries if objects else 0):
+        for _ in range(inp.cameras.max_tries if objects else 0):
             focus = objects[int(rng.integers(len(objects)))]
             a = by_id[focus.obj_id]
             centre = np.asarray(a.bbox_min) + 0.5 * np.asarray(a.extents)
             target = (focus.matrix @ np.append(centre, 1.0))[:3] + origin  # world frame
-            s = cameras.sample_camera(rng, target, spec.cameras)
+            s = cameras.sample_camera(rng, target, inp.cameras)
             t0 = time.perf_counter()
             cam = w.camera(s.R_w2c, s.t_w2c, origin)
-            vf = (annot.visib_fract_lens(cam, warp, spec.intrinsics.distortion, focus.inst, spec.visibility.delta)
-                  if warp else annot.visib_fract(cam, focus.inst, spec.visibility.delta))
+            vf = (annot.visib_fract_lens(cam, warp, inp.intrinsics.distortion, focus.inst, inp.visibility.delta)
+                  if warp else annot.visib_fract(cam, focus.inst, inp.visibility.delta))
             rec.tries += 1
-            if vf >= spec.visibility.threshold and in_free_space(w, annot, s, origin):
+            if vf >= inp.visibility.threshold and in_free_space(annot, s, origin, inp.cameras.clearance):
                 rec.accepted = True
                 rec.focus_inst, rec.focus_visib_fract = focus.inst, float(vf)
                 rec.R_w2c, rec.t_w2c = np.asarray(s.R_w2c).tolist(), np.asarray(s.t_w2c).tolist()
@@ -58,10 +58,10 @@ def run_views(w: Worker, arrange_key: str, jobs: list[Job]) -> list[dict[str, An
     return out
 
 
-def in_free_space(w: Worker, annot, s, origin: np.ndarray) -> bool:
+def in_free_space(annot, s, origin: np.ndarray, clearance: float) -> bool:
     """The camera stands in the open, ``cameras.clearance`` from every surface: not inside a
     wall, a piece of furniture or an object (where a renderer shows the inside of it)."""
-    if w.spec.cameras.clearance <= 0:
+    if clearance <= 0:
         return True
     eye = -np.asarray(s.R_w2c, np.float64).T @ np.asarray(s.t_w2c, np.float64)  # world frame
-    return annot.free_distance(eye - origin) >= w.spec.cameras.clearance
+    return annot.free_distance(eye - origin) >= clearance

@@ -18,7 +18,8 @@ from ..plan.compiler import arr_id
 from ..plugins import backend_plugin
 from ..scenes import load_scene
 from ..scenes.types import SceneDesc
-from ..spec.models import DatasetSpec, SceneRef
+from ..plan.inputs import ArrangeInputs, BuildInputs
+from ..spec.models import SceneRef
 from ..views import cameras
 from .store import Store
 
@@ -27,9 +28,9 @@ PROCEDURAL_KEPT = 2  # procedural rooms a worker keeps loaded (one per arrangeme
 
 @dataclass(frozen=True)
 class BuildContext:
-    """Everything a worker needs; small and picklable."""
+    """Everything a worker needs; small and picklable. Of the spec, only what the stages read."""
 
-    spec: DatasetSpec
+    inputs: BuildInputs
     spec_dir: Path
     out: Path
     threads: int = 0  # renderer threads per worker; 0 = the executor decides (its cores per worker)
@@ -47,7 +48,10 @@ class Worker:
 
     def __init__(self, ctx: BuildContext):
         self.ctx = ctx
-        self.spec = ctx.spec
+        # What every step reads to rebuild an arrangement's scene, and the image's intrinsics (the
+        # view's and the render's are the same field of the spec).
+        self.world: ArrangeInputs = ctx.inputs.arrange
+        self.intrinsics = ctx.inputs.view.intrinsics
         self.store = Store(ctx.out)
         self._assets: list[ObjectAsset] | None = None
         self._scenes: dict[tuple[str, int | None], SceneDesc] = {}
@@ -70,7 +74,7 @@ class Worker:
     # ------------------------------------------------------------------ lazily built state
     def assets(self) -> list[ObjectAsset]:
         if self._assets is None:
-            self._assets = resolve_objects(self.spec.objects, self.ctx.spec_dir)
+            self._assets = resolve_objects(self.world.objects, self.ctx.spec_dir)
         return self._assets
 
     def scene(self, ref: SceneRef, variant: int | None = None) -> SceneDesc:
@@ -80,17 +84,17 @@ class Worker:
                 rooms = [k for k in self._scenes if k[1] is not None]
                 for old in rooms[: max(0, len(rooms) - PROCEDURAL_KEPT + 1)]:
                     del self._scenes[old]
-            clearance = self.spec.arrangements.drop_height[1] + max((a.diameter for a in self.assets()), default=0.0)
+            clearance = self.world.arrangements.drop_height[1] + max((a.diameter for a in self.assets()), default=0.0)
             self._scenes[key] = load_scene(ref, self.ctx.spec_dir, clearance=clearance, variant=variant)
         return self._scenes[key]
 
     def lens_warp(self):
         """The lens warp of the spec's intrinsics (computed once per worker), None without distortion."""
-        k = self.spec.intrinsics.distortion
+        k = self.intrinsics.distortion
         if k is None:
             return None
         if self._warp is None:
-            intr = self.spec.intrinsics
+            intr = self.intrinsics
             self._warp = lens.warp_for(cameras.intrinsics_matrix(intr), intr.width, intr.height, k)
         return self._warp
 
@@ -100,7 +104,7 @@ class Worker:
             from ..annotate.albedo import AlbedoRenderer
 
             warp = self.lens_warp()  # through a lens, the albedo is drawn like the colour: pinhole, then warped
-            size = (warp.width, warp.height) if warp else (self.spec.intrinsics.width, self.spec.intrinsics.height)
+            size = (warp.width, warp.height) if warp else (self.intrinsics.width, self.intrinsics.height)
             self._albedo = AlbedoRenderer(*size)
             self._albedo_key = None
         if self._albedo_key != arrange_key:
@@ -112,15 +116,16 @@ class Worker:
         if self._annotator is None:
             from ..annotate.engine import Annotator
 
-            self._annotator = Annotator(self.spec.intrinsics.width, self.spec.intrinsics.height)
+            self._annotator = Annotator(self.intrinsics.width, self.intrinsics.height)
         return self._annotator
 
     def backend(self):
         if self._backend is None:
-            plugin = backend_plugin(self.spec.backend.name)
+            inp = self.ctx.inputs.render
+            plugin = backend_plugin(inp.backend.name)
             # Paths in a spec are relative to the spec file (as the compiler hashes them), never
             # to wherever the build was started.
-            options = plugin.options_for(self.spec.backend.relative_to(self.ctx.spec_dir), self.spec.quality)
+            options = plugin.options_for(inp.backend.relative_to(self.ctx.spec_dir), inp.quality)
             self._backend = plugin.load_class()(options, threads=self.ctx.threads)
             self.draws_scene = plugin.capabilities.draws_scene
         return self._backend
@@ -147,7 +152,7 @@ class Worker:
 
     # ------------------------------------------------------------------ helpers
     def _scene_ref(self, name: str) -> SceneRef:
-        for ref in self.spec.scenes:
+        for ref in self.world.scenes:
             if ref.ref == name:
                 return ref
         raise KeyError(name)
@@ -179,7 +184,7 @@ class Worker:
         """The dataset's objects and, when annotated, the arrangement's distractors, by obj_id."""
         by_id = {a.obj_id: a for a in self.assets()}
         extra = sorted({o.name for o in arr.objects if o.obj_id not in by_id})
-        d, n = self.spec.arrangements.distractors, len(self.assets())
+        d, n = self.world.arrangements.distractors, len(self.assets())
         for a in self.distractor_assets(extra):
             by_id[d.obj_id(a.name, n)] = replace(a, obj_id=d.obj_id(a.name, n))
         return by_id
@@ -212,7 +217,7 @@ class Worker:
         from ..scenes.randomize import randomize_scene
 
         library = textures.available(cache_dir()) if ref.randomize.materials else []
-        rng = np.random.default_rng(seeds.job_seed(self.spec.seed, f"{arr_id(arr)}/randomize"))
+        rng = np.random.default_rng(seeds.job_seed(self.world.seed, f"{arr_id(arr)}/randomize"))
 
         def has_uv(path: str) -> bool:
             if path not in self._has_uv:
@@ -232,5 +237,5 @@ class Worker:
         return scene.translated(origin), origin
 
     def camera(self, R_w2c, t_w2c, origin=None):
-        cam = cameras.camera_ir(self.spec.intrinsics, np.asarray(R_w2c), np.asarray(t_w2c))
+        cam = cameras.camera_ir(self.intrinsics, np.asarray(R_w2c), np.asarray(t_w2c))
         return cam if origin is None else cam.translated(origin)

@@ -111,7 +111,8 @@ def camera_pose(target, azimuth: float, elevation: float, distance: float, inpla
 
 
 def sample_camera(rng: np.random.Generator, target, cams: "Cameras") -> CameraSample:
-    """One camera around ``target`` with parameters uniform in the spec's ranges.
+    """One camera around ``target`` with parameters uniform in the spec's ranges (``cams``: the
+    spec's cameras or the view step's cut of them, ``specsynth.plan.inputs.CameraDraws``).
 
     Always consumes exactly one ``rng.random(4)`` draw (azimuth, elevation, distance, in-plane,
     in that order), degenerate ranges included, so a job's seed fixes the whole camera sequence.
