@@ -16,6 +16,9 @@ from typing import Any
 from .store import write_json
 
 INDEX = Path(".specsynth") / "outputs.json"
+# The files two builds of one spec differ in: render seconds per image (a stereo build's right eye
+# has its own).
+TIMINGS = ("timings.parquet", "timings_right.parquet")
 
 
 def _sha256(path: Path) -> str:
@@ -70,9 +73,9 @@ def verify(out: Path) -> dict[str, list[str]]:
     return {"changed": changed, "missing": missing}
 
 
-def compare(a: Path, b: Path, skip: tuple[str, ...] = ("timings.parquet",)) -> dict[str, Any]:
-    """Two datasets by their recorded file hashes (``timings.parquet`` differs between any two
-    builds: it holds wall-clock seconds), plus each side verified against its own record."""
+def compare(a: Path, b: Path, skip: tuple[str, ...] = TIMINGS) -> dict[str, Any]:
+    """Two datasets by their recorded file hashes (but for ``TIMINGS``: wall-clock seconds),
+    plus each side verified against its own record."""
     ia, ib = read_index(a), read_index(b)
     keep = lambda rel: rel.rsplit("/", 1)[-1] not in skip  # noqa: E731
     only_a = sorted(r for r in ia if r not in ib and keep(r))
