@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
 from ..assets.resolve import ObjectAsset
 from ..spec.models import DatasetSpec
@@ -21,10 +21,14 @@ __all__ = ["write_outputs", "write_bop", "write_coco", "write_parquet"]
 
 
 def write_outputs(
-    out: Path, spec: DatasetSpec, images: Sequence[ImageEntry], models: Sequence[ObjectAsset]
+    out: Path, spec: DatasetSpec, images: Sequence[ImageEntry], models: Sequence[ObjectAsset],
+    previous: Iterable[str] = (),
 ) -> dict[str, int]:
     """Write every output the spec enables into ``out``; returns counts by name. A stereo build's
-    right eye is a dataset of its own beside the left: split ``<split>_right``, parquet ``*_right``."""
+    right eye is a dataset of its own beside the left: split ``<split>_right``, parquet ``*_right``.
+    ``previous``: the files the last build wrote (relative paths), of which those this spec no
+    longer writes are removed."""
+    _remove_stale(Path(out), spec, previous)
     right = sorted_images(e for e in images if e[0].eye == "right")
     counts = _write_eye(Path(out), spec, sorted_images(e for e in images if e[0].eye != "right"), models, spec.split, "")
     if right:
@@ -33,6 +37,29 @@ def write_outputs(
     else:  # an earlier stereo build's right eye must not outlive its spec
         _remove_right_eye(Path(out), spec.split)
     return counts
+
+
+def _remove_stale(out: Path, spec: DatasetSpec, previous: Iterable[str]) -> None:
+    """A format turned off or a split renamed since the last build: its files go with it, as a
+    clean build of this spec would not have them (files the last build did not write stay)."""
+    o, splits = spec.outputs, {spec.split, f"{spec.split}_right"}
+
+    def kept(rel: str) -> bool:
+        parts = rel.split("/")
+        if parts[0] == "bop":
+            return o.bop and (len(parts) < 3 or parts[1] == "models" or parts[1] in splits)
+        if parts[0] == "coco":
+            return o.coco and parts[-1].removesuffix(".json") in splits
+        return parts[0] != "parquet" or o.parquet
+
+    for rel in previous:
+        if kept(rel):
+            continue
+        (out / rel).unlink(missing_ok=True)
+        folder = (out / rel).parent
+        while folder != out and folder.is_dir() and not any(folder.iterdir()):  # left empty
+            folder.rmdir()
+            folder = folder.parent
 
 
 def _remove_right_eye(out: Path, split: str) -> None:

@@ -490,9 +490,9 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
     _account_savings(summary, images, pipe.cached_render)
     from ..outputs import write_outputs
     from ..outputs.attribution import write_attribution
-    from .verify import write_index
+    from .verify import read_index, write_index
 
-    write_outputs(out, graph.spec, images, dataset_models(graph, images))
+    write_outputs(out, graph.spec, images, dataset_models(graph, images), previous=read_index(out))
     write_attribution(out, credits, graph.spec.name)
     write_manifest(graph, out, pipe.arr_jobs)
     write_json(out / "failures.json", summary.failures)
