@@ -138,6 +138,8 @@ EDITS = {
     "metadata.contributor": ["someone"],
     "outputs.chunk_size": [1],
     "outputs.coco": ["false"],
+    "outputs.bop": ["false"],
+    "outputs.parquet": ["false"],
 }
 
 
@@ -151,10 +153,10 @@ def test_the_edits_reach_every_stage():
 
 
 def _files(out: Path) -> dict[str, str]:
-    """sha256 of every dataset file, but for the render seconds (the files any two builds differ
-    in, which ``specsynth diff`` skips too)."""
-    return {p.relative_to(out).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in output_files(out) if p.name not in TIMINGS}
+    """sha256 of every dataset file but for the render seconds (the files any two builds differ
+    in, which ``specsynth diff`` skips too), and of the manifest (every job's key)."""
+    files = [p for p in output_files(out) if p.name not in TIMINGS] + [out / ".specsynth" / "manifest.json"]
+    return {p.relative_to(out).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
 
 
 def _build(spec_file: Path, out: Path, sets: list[str]) -> None:
