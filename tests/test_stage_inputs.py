@@ -4,6 +4,7 @@ and an incremental rebuild after any edit equals a clean build of the edited spe
 from __future__ import annotations
 
 import hashlib
+import inspect
 import shutil
 from pathlib import Path
 
@@ -81,7 +82,11 @@ def test_workers_get_the_inputs_not_the_spec(tmp_path):
     assert inputs.render.backend.backgrounds == "builtin"  # the plugin's own options, not the base model's
     assert "backgrounds" in inputs.render.model_dump(mode="json")["backend"]
     with pytest.raises(Exception):
-        inputs.view.cameras = spec.cameras  # frozen
+        inputs.view.intrinsics = spec.intrinsics  # frozen
+    from specsynth.run import arrange, render, tasks, views, worker
+
+    for module in (arrange, views, render, worker, tasks):  # the steps are given no way to the spec
+        assert "DatasetSpec" not in inspect.getsource(module), module.__name__
 
 
 # ---------------------------------------------------------------------- incremental == clean
