@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from pydantic import create_model
 
 from specsynth.plan.compiler import compile_spec, stage_of_field
-from specsynth.plan.inputs import STAGE_INPUTS, WRITTEN_ONLY, BuildInputs, unread_fields
+from specsynth.plan.inputs import PLANNED, STAGE_INPUTS, WRITTEN_ONLY, BuildInputs, unread_fields
 from specsynth.run.build import build
 from specsynth.run.verify import TIMINGS, output_files
 from specsynth.run.worker import BuildContext
@@ -48,7 +48,7 @@ outputs:
 def test_every_spec_field_is_read_by_a_stage_or_written_only():
     assert unread_fields() == []
     taken = {path for m in STAGE_INPUTS.values() for _, path in m.spec_paths()}
-    for path in WRITTEN_ONLY:  # a written-only field is no stage's input, and exists
+    for path in [*WRITTEN_ONLY, *PLANNED]:  # a field no job reads is no stage's input, and exists
         assert not any(path == t or path.startswith(t + ".") or t.startswith(path + ".") for t in taken), path
         model = DatasetSpec
         for part in path.split("."):
@@ -69,6 +69,8 @@ def test_the_stage_a_field_re_runs_comes_from_the_inputs():
     assert stage_of_field("sensor.depth.dropout") == "render"
     assert stage_of_field("outputs.normals") == "render"
     assert stage_of_field("outputs.coco") is None
+    assert stage_of_field("arrangements.count") is None
+    assert stage_of_field("cameras.stereo") == "render"  # the view draws cameras, not their optics
     assert stage_of_field("metadata.license.url") is None
 
 
@@ -87,6 +89,13 @@ def test_workers_get_the_inputs_not_the_spec(tmp_path):
 
     for module in (arrange, views, render, worker, tasks):  # the steps are given no way to the spec
         assert "DatasetSpec" not in inspect.getsource(module), module.__name__
+
+
+def test_more_arrangements_re_run_none_of_the_first(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC)
+    one, three = (compile_spec(load_spec(f, [f"arrangements.count={n}"])) for n in (1, 3))
+    assert list(one.jobs()) == list(three.jobs())[: len(list(one.jobs()))]
 
 
 # ---------------------------------------------------------------------- incremental == clean

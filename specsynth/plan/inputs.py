@@ -17,13 +17,14 @@ from typing import Annotated, Any, Iterator, Literal, get_args, get_origin
 from pydantic import BaseModel, ConfigDict, SerializeAsAny
 
 from ..spec.models import (
-    Arrangements,
     BackendOptions,
     DatasetSpec,
     DepthOfField,
+    Distractors,
     Intrinsics,
     MotionBlur,
     Objects,
+    Physics,
     Quality,
     SceneRef,
     Sensor,
@@ -104,6 +105,14 @@ def _cut_type(annotation) -> type[Cut] | None:
     return annotation if isinstance(annotation, type) and issubclass(annotation, Cut) else None
 
 
+class ArrangementDraws(Cut):
+    """How each arrangement is dropped (how many there are is the plan's, ``PLANNED``)."""
+
+    drop_height: Annotated[tuple[float, float], From("drop_height")]
+    physics: Annotated[Physics, From("physics")]
+    distractors: Annotated[Distractors, From("distractors")]
+
+
 class ArrangeInputs(StageInputs):
     """The arrange step's: what is dropped, where, how. Views and renders rebuild an arrangement's
     scene from its record with these too (its key is their upstream key)."""
@@ -111,7 +120,7 @@ class ArrangeInputs(StageInputs):
     seed: Annotated[int, From("seed")]
     objects: Annotated[Objects, From("objects")]
     scenes: Annotated[tuple[SceneRef, ...], From("scenes")]
-    arrangements: Annotated[Arrangements, From("arrangements")]
+    arrangements: Annotated[ArrangementDraws, From("arrangements")]
 
 
 class CameraDraws(Cut):
@@ -168,6 +177,13 @@ class RenderInputs(StageInputs):
 
 STAGE_INPUTS: dict[str, type[StageInputs]] = {"arrange": ArrangeInputs, "view": ViewInputs, "render": RenderInputs}
 
+# Spec fields that decide how many jobs there are but not what any job makes: changing one adds or
+# drops jobs and re-runs none.
+PLANNED = {
+    "arrangements.count": "how many arrangements: each one's objects, cameras and images depend on its "
+                          "own index and seed, not on how many others there are",
+}
+
 # Spec fields no job reads, and why: changing one re-runs nothing (the merge rewrites the dataset).
 WRITTEN_ONLY = {
     "version": "the spec language's version, checked when the spec is read",
@@ -197,7 +213,7 @@ class BuildInputs(BaseModel):
 
 def stage_of_field(dotted: str) -> str | None:
     """The first stage whose jobs read a spec field (every later stage re-runs with it); None for
-    fields that only shape the written dataset (``WRITTEN_ONLY``)."""
+    fields no job reads (``PLANNED``, ``WRITTEN_ONLY``)."""
     for stage, model in STAGE_INPUTS.items():
         for _, path in model.spec_paths():
             if dotted == path or dotted.startswith(path + ".") or path.startswith(dotted + "."):
@@ -206,9 +222,10 @@ def stage_of_field(dotted: str) -> str | None:
 
 
 def unread_fields(model: type[BaseModel] = DatasetSpec, prefix: str = "") -> list[str]:
-    """Spec fields neither in some stage's inputs nor in ``WRITTEN_ONLY``: a field added to the
-    spec lands here until it is given to the stages that read it, or said to be written only."""
-    taken = {path for m in STAGE_INPUTS.values() for _, path in m.spec_paths()}
+    """Spec fields neither in some stage's inputs nor in ``PLANNED`` or ``WRITTEN_ONLY``: a field
+    added to the spec lands here until it is given to the stages that read it, or said to be
+    read by no job."""
+    taken = {path for m in STAGE_INPUTS.values() for _, path in m.spec_paths()} | set(PLANNED)
     missing = []
     for name, info in model.model_fields.items():
         path = f"{prefix}{name}"
