@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from pydantic import create_model
+from pydantic import ValidationError, create_model
 
 from specsynth.plan.compiler import compile_spec, stage_of_field
 from specsynth.plan.inputs import PLANNED, STAGE_INPUTS, WRITTEN_ONLY, BuildInputs, unread_fields
@@ -45,7 +45,7 @@ outputs:
 # ---------------------------------------------------------------------- every field accounted for
 
 
-def test_every_spec_field_is_read_by_a_stage_or_written_only():
+def test_every_spec_field_is_read_by_a_stage_or_by_no_job():
     assert unread_fields() == []
     taken = {path for m in STAGE_INPUTS.values() for _, path in m.spec_paths()}
     for path in [*WRITTEN_ONLY, *PLANNED]:  # a field no job reads is no stage's input, and exists
@@ -83,12 +83,20 @@ def test_workers_get_the_inputs_not_the_spec(tmp_path):
     assert inputs.render.outputs.image_format == "png" and not hasattr(inputs.render.outputs, "coco")
     assert inputs.render.backend.backgrounds == "builtin"  # the plugin's own options, not the base model's
     assert "backgrounds" in inputs.render.model_dump(mode="json")["backend"]
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError):
         inputs.view.intrinsics = spec.intrinsics  # frozen
     from specsynth.run import arrange, render, tasks, views, worker
 
     for module in (arrange, views, render, worker, tasks):  # the steps are given no way to the spec
         assert "DatasetSpec" not in inspect.getsource(module), module.__name__
+
+
+def test_a_field_no_job_reads_changes_no_key(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC)
+    edits = ["name=other", "split=val_pbr", "metadata.contributor=someone", "outputs.coco=false",
+             "outputs.chunk_size=3", "arrangements.count=4"]
+    assert compile_spec(load_spec(f, edits)).stage_digests == compile_spec(load_spec(f, [])).stage_digests
 
 
 def test_more_arrangements_re_run_none_of_the_first(tmp_path):
