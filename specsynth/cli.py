@@ -587,7 +587,7 @@ def _start_commands(sub) -> None:
     p.add_argument("--models", help="a BOP models folder for objects.path (e.g. dataset:lmo/models); "
                    "default: built-in objects")
     p.add_argument("--scene", help="your scene file (glTF/GLB, or a scene YAML); default: random_room")
-    p.add_argument("--backend", help="the renderer (default: cycles if installed, else mitsuba, else photo)")
+    p.add_argument("--backend", help="the renderer (default: the installed backend plugin ranked first; see specsynth backends)")
     p.set_defaults(fn=cmd_init)
 
     p = sub.add_parser("doctor", help="check the installation: Python, renderers, OpenGL, assets, GPUs; "

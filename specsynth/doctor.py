@@ -50,7 +50,7 @@ def version_lines() -> list[str]:
             uses = f"broken: {e}"
         lines.append(f"  backend {ep.name}: {dist}" + (f" ({uses})" if uses else ""))
     if not eps:
-        lines.append("  no backend plugin installed (pip install specsynth-cycles, specsynth-mitsuba or specsynth-photo)")
+        lines.append("  no backend plugin installed (install a specsynth backend distribution; in this repository: make install)")
     return lines
 
 
@@ -133,7 +133,7 @@ def backend_checks() -> list[Check]:
     names = available_backends()
     if not names:
         return [Check("backends", False, "no render backend plugin is installed",
-                      "pip install specsynth-cycles (or specsynth-mitsuba, specsynth-photo)")]
+                      "install a specsynth backend distribution (in this repository: make install)")]
     out = [Check("backends", True, ", ".join(names))]
     for name in names:
         try:

@@ -148,7 +148,7 @@ KINDS = (
     Kind(re.compile(r"occlusionTexture is ignored"),
          lambda n: f"{_plural(n, 'glTF material has', 'glTF materials have')} an occlusion texture, which is not "
                    "used (path tracers compute occlusion themselves)"),
-    Kind(re.compile(r"^cycles: no GPU"), lambda n: "cycles: no GPU found on this machine; rendered on the CPU"),
+    Kind(re.compile(r"^[\w-]+: no GPU"), lambda n: "no GPU found on this machine; rendered on the CPU"),
     Kind(re.compile(r"."), lambda n: f"{_plural(n, 'numerical warning', 'numerical warnings')} from a library "
                                       "(e.g. a statistic over no values); run with --verbose to see them",
          source="RuntimeWarning"),

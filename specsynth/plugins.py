@@ -72,6 +72,8 @@ class BackendPlugin:
     # "module:function" -> list[Check]: the plugin's own installation check for `specsynth doctor`
     # (whether its renderer imports, its version, what the machine offers it). Imported only then.
     checks: str = ""
+    # `specsynth init` writes the installed backend with the lowest rank into a starter spec.
+    default_rank: int = 100
 
     def options_for(self, options: Any, quality: Any) -> Any:
         """The spec's options with the level's calibration filled in where the spec is silent.

@@ -11,10 +11,11 @@ import os
 import re
 from pathlib import Path
 
-from .plugins import available_backends
+from .plugins import installed_backend_plugins
 from .spec.yamlio import Problem, SpecError, load_spec
 
-PREFERRED_BACKENDS = ("cycles", "mitsuba", "photo")
+NO_BACKEND = ("no render backend plugin is installed: install a specsynth backend distribution "
+              "(in this repository: make install), then run specsynth init again")
 
 _OBJECTS_BUILTIN = """\
 objects:                       # what is dropped and annotated
@@ -72,7 +73,7 @@ _HEAD = """\
 # A starter dataset spec written by `specsynth init`. Check it with `specsynth validate {name}`,
 # then build it: specsynth build {name} --out {out}
 # Every field and its default: `specsynth schema --stdout`. Change one from the command line with
-# --set FIELD=VALUE, e.g. --set cameras.per_arrangement=2 --set backend.name=photo.
+# --set FIELD=VALUE, e.g. --set cameras.per_arrangement=2 --set backend.name=NAME.
 version: 1
 name: {dataset}
 seed: 0                        # same seed and spec: the same images, on any machine
@@ -87,14 +88,10 @@ intrinsics:                    # the camera (pixels); these are LM-O's, 640 x 48
 
 
 def default_backend() -> str:
-    installed = available_backends()
-    for name in PREFERRED_BACKENDS:
-        if name in installed:
-            return name
-    if installed:
-        return installed[0]
-    raise FileNotFoundError("no render backend plugin is installed: pip install specsynth-cycles "
-                            "(or specsynth-mitsuba, specsynth-photo), then run specsynth init again")
+    plugins = installed_backend_plugins()
+    if not plugins:
+        raise FileNotFoundError(NO_BACKEND)
+    return min(plugins, key=lambda p: (p.default_rank, p.name)).name
 
 
 def _relative(path: str, folder: Path) -> str:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import subprocess
 import sys
 import warnings
@@ -80,7 +81,7 @@ def _object_with_a_missing_texture(folder: Path) -> Path:
     spec = (ROOT / "specs" / "demo_bl.yaml").read_text().replace(
         "  builtin: [duck, mug, teddy, lego, jenga, torus]",
         f"  builtin: [duck, mug]\n  meshes: [{{path: {folder / 'box.ply'}, unit: m}}]")
-    spec = spec.replace("  - name: random_room", "  - name: room")
+    spec = re.sub(r"scenes:\n(?:  .*\n)+", "scenes:\n  - name: room\n", spec)  # the demo's rooms -> one fixed room
     out = folder / "spec.yaml"
     out.write_text(spec)
     return out

@@ -10,6 +10,7 @@ from .options import CyclesOptions
 
 PLUGIN = BackendPlugin(
     name="cycles",
+    default_rank=0,  # specsynth init's choice when several backends are installed
     options=CyclesOptions,
     backend="specsynth_cycles.backend:CyclesBackend",
     capabilities=Capabilities(

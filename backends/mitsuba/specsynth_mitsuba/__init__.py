@@ -10,6 +10,7 @@ from .options import MitsubaOptions
 
 PLUGIN = BackendPlugin(
     name="mitsuba",
+    default_rank=10,  # specsynth init's choice when several backends are installed
     options=MitsubaOptions,
     backend="specsynth_mitsuba.backend:MitsubaBackend",
     capabilities=Capabilities(

@@ -7,6 +7,7 @@ from .options import PhotoOptions
 
 PLUGIN = BackendPlugin(
     name="photo",
+    default_rank=20,  # specsynth init's choice when several backends are installed
     options=PhotoOptions,
     backend="specsynth_photo.backend:PhotoBackend",
     capabilities=Capabilities(
