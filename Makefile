@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 JOBS   ?= 2
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: install demo test test-slow test-all bench schema lint clean
+.PHONY: install demo test test-slow test-all bench schema docs lint clean
 
 install: $(STAMP)
 
@@ -44,5 +44,10 @@ bench: install
 schema: install
 	$(BIN)/specsynth schema
 
+# The documentation site from docs/ into site/ (broken links and pages outside the nav fail it).
+docs: install
+	$(BIN)/python scripts/docs_reference.py
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+
 clean:
-	rm -rf out bench-out .pytest_cache
+	rm -rf out bench-out site .pytest_cache
