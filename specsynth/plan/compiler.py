@@ -39,6 +39,9 @@ STAGES = ("arrange", "view", "render")
 MAX_IMAGES = 100_000_000
 BYTES_PER_PIXEL = 200  # per worker: renderer film and passes (~160 B/px in Cycles) + annotation buffers
 MAX_WORKER_BYTES = 8 << 30
+# Objects dropped in one arrangement: every one is a rigid body settling against the others, and
+# a pile of thousands never settles within max_time (10^6 instances validated and never ended).
+MAX_OBJECTS = 500
 
 
 def _limit(env: str, default: float) -> float:
@@ -65,6 +68,19 @@ def check_budgets(spec: DatasetSpec, loaded: LoadedSpec) -> list:
                                       f"needs about {need / (1 << 30):.1f} GiB per worker ({BYTES_PER_PIXEL} B/pixel), over "
                                       f"the limit of {max_bytes / (1 << 30):.1f} GiB (set SPECSYNTH_MAX_WORKER_GB to raise it)"))
     return problems
+
+
+def check_objects(spec: DatasetSpec, loaded: LoadedSpec, n_models: int) -> list:
+    """A located problem when an arrangement may drop more objects than physics can settle."""
+    objects = spec.objects
+    models = objects.models_per_arrangement[1] if objects.models_per_arrangement else n_models
+    most = objects.instances[1] * min(models, n_models) + spec.arrangements.distractors.count[1]
+    limit = _limit("SPECSYNTH_MAX_OBJECTS", MAX_OBJECTS)
+    if most <= limit:
+        return []
+    return [loaded.locate("objects.instances", f"up to {most:,} objects per arrangement ({objects.instances[1]} "
+                          f"instances x {min(models, n_models)} models + {spec.arrangements.distractors.count[1]} "
+                          f"distractors), over the limit of {int(limit):,} (set SPECSYNTH_MAX_OBJECTS to raise it)")]
 
 
 def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
@@ -229,6 +245,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     try:
         asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
         notes += bop_folder_notes(spec.objects, loaded.directory)
+        problems += check_objects(spec, loaded, len(asset_hashes))
     except AssetError as e:
         field = getattr(e, "field", None) or ("objects.path" if "objects.path" in str(e) else "objects")
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))

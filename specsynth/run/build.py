@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from .. import notices
+from ..files import UnsafeOutput, refuse_links_out  # noqa: F401  (UnsafeOutput: the CLI's)
 from ..model.records import ImageRecord
 from ..plan import keys
 from ..plan.compiler import STAGES, JobGraph
@@ -33,25 +34,6 @@ EST_SECONDS = {"arrange": 0.5, "view": 0.08}
 
 class BuildLocked(RuntimeError):
     pass
-
-
-class UnsafeOutput(RuntimeError):
-    """A symbolic link inside --out would make the build write or delete outside it."""
-
-
-def refuse_links_out(out: Path) -> None:
-    """Every folder and file a build writes or deletes lives under ``out``: a symbolic link in
-    there pointing elsewhere (``out/bop -> /data``) would carry writes and deletes out of it, so
-    the build stops and names it instead. Links that stay inside ``out`` are harmless."""
-    root = out.resolve()
-    for top, dirs, files in os.walk(out, followlinks=False):
-        for name in dirs + files:
-            p = Path(top) / name
-            if p.is_symlink():
-                target = p.resolve()
-                if target != root and root not in target.parents:
-                    raise UnsafeOutput(f"{p}: a symbolic link out of the output folder (to {target}); "
-                                       "remove it or give another --out")
 
 
 @contextmanager

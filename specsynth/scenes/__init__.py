@@ -28,6 +28,7 @@ from ..assets.meshfiles.part import MeshFileError
 from ..assets.meshfiles.sniff import check_mesh_file
 from ..assets.meshio import MeshData, read_mesh
 from ..assets.resolve import AssetError
+from ..files import not_a_file, read_regular
 from ..model.conventions import rpy_matrix
 from ..model.ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from . import autostage, filemeshes, gltfscene, random_room, surfaces
@@ -36,6 +37,7 @@ from .types import SceneDesc, Stage
 
 BUILTIN_DIR = Path(__file__).parent / "builtin"
 FOCUS = "focus"  # in a SceneRef's stages: every stage in the scene's focus areas
+MAX_SCENE_FILE_BYTES = 16 << 20  # a scene file lists meshes and lights; past this it is not one
 SCENE_VERSION = 2  # 2: glTF/OBJ sources keep every material. Bump when load_scene's output changes for the same file
 
 __all__ = ["SceneError", "builtin_scenes", "declares_stages", "load_scene", "read_scene_file", "scene_fingerprint",
@@ -103,8 +105,9 @@ def _scene_path(ref, spec_dir: Path) -> Path:
             raise SceneError(f"scene {name!r}: unknown built-in scene; built-in scenes are {', '.join(builtin_scenes())}")
         return p
     p = assets.expand_path(file, Path(spec_dir), f"scene file {file!r}")
-    if not p.is_file():
-        raise SceneError(f"scene file {file!r}: not found ({p})")
+    problem = not_a_file(p)
+    if problem is not None:
+        raise SceneError(f"scene file {file!r}: {problem} ({p})")
     return p
 
 
@@ -150,9 +153,11 @@ def read_scene_file(path: Path) -> SceneFile:
         except meshfiles.MeshFileError as e:
             raise SceneError(str(e) if str(e).startswith(str(path)) else f"{path}: {e}") from None
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = read_regular(path, MAX_SCENE_FILE_BYTES).decode("utf-8")
     except UnicodeDecodeError:
         raise SceneError(f"{path}: not a text file; a scene is YAML, JSON, or a glTF/GLB file") from None
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read ({e.strerror or type(e).__name__})") from None
     try:
         data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as e:

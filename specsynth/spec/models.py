@@ -149,6 +149,13 @@ class Objects(Strict):
         description="Material overrides keyed by 'default', an obj id ('5') or a built-in name ('duck').",
     )
 
+    @field_validator("instances")
+    @classmethod
+    def _instances(cls, v):
+        if v[1] > MAX_DROPPED:
+            raise ValueError(f"at most {MAX_DROPPED} instances of a model per arrangement")
+        return v
+
     @field_validator("materials", mode="before")
     @classmethod
     def _ids_as_keys(cls, v):
@@ -162,6 +169,9 @@ class Objects(Strict):
         if self.ids is not None and self.path is None:
             raise ValueError("'ids' selects from a BOP folder: set 'path' too")
         return self
+
+
+MAX_DROPPED = 1000  # objects or distractors dropped per arrangement (see also the compiler's SPECSYNTH_MAX_OBJECTS)
 
 
 def _int_range(v: tuple[int, int], lo_min: int) -> tuple[int, int]:
@@ -295,6 +305,13 @@ class Distractors(Strict):
         False, description="Annotate the distractors too (BOP's 'other objects'): each distractor model gets an obj_id "
         "after the dataset's objects, stable across builds (N + 1 + its position in 'objects'; random_urdfs/k after "
         "the named ones), its model in bop/models, masks, boxes and poses like any object.")
+
+    @field_validator("count")
+    @classmethod
+    def _count(cls, v):
+        if v[1] > MAX_DROPPED:
+            raise ValueError(f"at most {MAX_DROPPED} distractors per arrangement")
+        return v
 
     @model_validator(mode="after")
     def _annotated_catalogue(self):

@@ -1,0 +1,83 @@
+"""Files read or written on a user's behalf, checked before they are opened.
+
+- A path is opened only once ``os.stat`` says it is a regular file: a FIFO blocks its reader for
+  ever, ``/dev/zero`` never ends, and a folder or a link loop is not "missing" (:func:`not_a_file`).
+- Nothing outside a folder given to write into is written, followed or deleted: a symbolic link in
+  it that points elsewhere is refused before any work (:func:`refuse_links_out`).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import stat
+from pathlib import Path
+
+_KINDS = (
+    (stat.S_ISDIR, "a folder, not a file"),
+    (stat.S_ISFIFO, "a FIFO (named pipe), not a regular file"),
+    (stat.S_ISCHR, "a character device, not a regular file"),
+    (stat.S_ISBLK, "a block device, not a regular file"),
+    (stat.S_ISSOCK, "a socket, not a regular file"),
+)
+
+
+class UnsafeOutput(RuntimeError):
+    """A symbolic link inside an output folder would carry writes or deletes outside it."""
+
+
+def not_a_file(path: str | os.PathLike) -> str | None:
+    """Why ``path`` cannot be read as a file ("not found", "a FIFO ...", "a symbolic link loop"),
+    or None for a regular file. Links are followed, the file is never opened."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "not found"
+    except NotADirectoryError:
+        return "not found (a folder on its path is a file)"
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return "a symbolic link loop"
+        return f"cannot be read ({e.strerror or type(e).__name__})"
+    if stat.S_ISREG(st.st_mode):
+        return None
+    return next((kind for test, kind in _KINDS if test(st.st_mode)), "not a regular file")
+
+
+def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
+    """The bytes of a regular file, at most ``limit`` of them; OSError (its strerror says why)
+    for anything else. Opened without blocking and checked again on the open descriptor, so a
+    FIFO put in the file's place after a check cannot hang the reader either."""
+    problem = not_a_file(path)
+    if problem is not None:
+        raise OSError(errno.ENOENT if problem == "not found" else errno.EINVAL, problem)
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(errno.EINVAL, "not a regular file")
+        if limit is not None and st.st_size > limit:
+            raise OSError(errno.EFBIG, f"{st.st_size:,} bytes, over the {limit:,}-byte limit")
+        data = f.read() if limit is None else f.read(limit + 1)
+    if limit is not None and len(data) > limit:
+        raise OSError(errno.EFBIG, f"over the {limit:,}-byte limit")
+    return data
+
+
+def inside(path: str | os.PathLike, root: str | os.PathLike) -> bool:
+    """Whether ``path`` is ``root`` or lies under it once every link on both is resolved."""
+    p, r = Path(os.path.realpath(path)), Path(os.path.realpath(root))
+    return p == r or r in p.parents
+
+
+def refuse_links_out(folder: Path) -> None:
+    """Every file a command writes or deletes lives under ``folder``: a symbolic link in there
+    pointing elsewhere (``out/bop -> /data``) would carry writes and deletes out of it, so the
+    command stops and names it instead. Links that stay inside ``folder`` are harmless."""
+    root = Path(folder).resolve()
+    for top, dirs, files in os.walk(folder, followlinks=False):
+        for name in dirs + files:
+            p = Path(top) / name
+            if p.is_symlink() and not inside(p, root):
+                raise UnsafeOutput(f"{p}: a symbolic link out of the output folder (to {p.resolve()}); "
+                                   "remove it or give another folder")
