@@ -102,7 +102,53 @@ def one_message(spec: Path, *overrides: str) -> str:
     return "\n".join(str(p) for p in problems(spec, *overrides))
 
 
-# --------------------------------------------------------------------------- 2. counts
+# --------------------------------------------------------------------------- 2. special files
+
+
+@pytest.fixture()
+def fifo(tmp_path) -> Path:
+    p = tmp_path / "pipe.png"
+    os.mkfifo(p)
+    return p
+
+
+@pytest.mark.parametrize("special, kind", [("fifo", "FIFO"), ("/dev/zero", "character device"),
+                                           ("folder", "a folder")])
+def test_a_special_file_as_a_texture_is_refused_without_opening_it(tmp_path, fifo, special, kind):
+    spec = obj_scene(tmp_path / "s")
+    path = {"fifo": fifo, "folder": tmp_path}.get(special, special)
+    r = cli("validate", spec, "--set", f"objects.materials.duck.texture={path}", timeout=60)
+    assert r.returncode == 2
+    assert "objects.materials.duck.texture" in r.stderr and kind in r.stderr and str(path) in r.stderr
+
+
+def test_a_fifo_as_an_object_mesh_or_a_scene_file_is_refused(tmp_path):
+    spec = obj_scene(tmp_path / "s")
+    os.mkfifo(tmp_path / "s" / "pipe.obj")
+    r = cli("validate", spec, "--set", "objects.meshes=[{path: pipe.obj, unit: m}]", timeout=60)
+    assert r.returncode == 2 and "pipe.obj" in r.stderr and "FIFO" in r.stderr
+    os.mkfifo(tmp_path / "s" / "pipe.yaml")
+    r = cli("validate", spec, "--set", "scenes=[{file: pipe.yaml}]", timeout=60)
+    assert r.returncode == 2 and "scenes.0.file" in r.stderr and "FIFO" in r.stderr
+
+
+@pytest.mark.parametrize("statement", ["mtllib", "map_Kd", "map_Pr", "map_Bump"])
+@pytest.mark.parametrize("command", ["validate", "build", "show"])
+def test_an_obj_naming_a_fifo_is_refused_by_every_command(tmp_path, statement, command):
+    mtl = "newmtl wood\nKd 0.8 0.8 0.8\nmap_Kd wood.png\n"
+    obj = OBJ
+    if statement == "mtllib":
+        obj = OBJ.replace("mtllib table.mtl", "mtllib pipe.mtl")
+        os.mkfifo(tmp_path / "pipe.mtl")
+    else:
+        mtl += f"{statement} pipe.png\n"
+        os.mkfifo(tmp_path / "pipe.png")
+    spec = obj_scene(tmp_path, mtl=mtl, obj=obj)
+    args = {"validate": ("validate", spec), "build": ("build", spec, "--out", tmp_path / "out", "--quiet"),
+            "show": ("scenes", "show", tmp_path / "scene.yaml", "--out", tmp_path / "top.png")}[command]
+    r = cli(*args, timeout=90)
+    assert r.returncode == 2, r.stderr
+    assert "FIFO" in r.stderr and "pipe." in r.stderr and "Traceback" not in r.stderr
 
 
 def test_object_counts_are_bounded_before_any_work(tmp_path):
@@ -130,3 +176,202 @@ def test_a_scene_file_that_is_not_a_file_says_what_it_is(tmp_path, kind, says):
         (tmp_path / "loop.yaml").symlink_to(target)
     r = cli("validate", spec, "--set", "scenes=[{file: other.yaml}]", timeout=60)
     assert r.returncode == 2 and says in r.stderr and "not found" not in r.stderr
+
+
+# --------------------------------------------------------------------------- 7. huge and broken textures
+
+
+def test_a_huge_obj_texture_is_refused_in_validate(tmp_path):
+    spec = obj_scene(tmp_path)
+    png_header(tmp_path / "wood.png", 20000, 20000)
+    msg = one_message(spec)
+    assert "wood.png" in msg and "pixel limit" in msg
+
+
+def test_a_huge_roughness_map_is_a_located_error(tmp_path):
+    spec = obj_scene(tmp_path, mtl="newmtl wood\nKd 0.8 0.8 0.8\nmap_Pr rough.png\n")
+    png_header(tmp_path / "rough.png", 20000, 20000)
+    msg = one_message(spec)
+    assert "rough.png" in msg and "table.mtl:3" in msg and "pixel limit" in msg
+    assert "DecompressionBomb" not in msg
+
+
+def test_a_huge_spec_texture_is_refused(tmp_path):
+    spec = obj_scene(tmp_path)
+    png_header(tmp_path / "big.png", 12000, 12000)
+    (pr,) = problems(spec, "objects.materials.duck.texture=big.png")
+    assert pr.path == "objects.materials.duck.texture" and "12000 x 12000" in pr.message
+
+
+def test_a_text_file_as_an_obj_texture_is_refused(tmp_path):
+    spec = obj_scene(tmp_path)
+    (tmp_path / "wood.png").write_text("root:x:0:0:secret-token\n")
+    msg = one_message(spec)
+    assert "wood.png" in msg and "not an image" in msg and "secret-token" not in msg
+
+
+# --------------------------------------------------------------------------- 8. references out of a file's folder
+
+
+def test_an_obj_texture_outside_its_folder_is_refused(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    small_png(elsewhere / "private_photo.png")
+    spec = obj_scene(tmp_path / "a" / "b", mtl="newmtl wood\nKd 0.8 0.8 0.8\nmap_Kd ../../elsewhere/private_photo.png\n")
+    msg = one_message(spec)
+    assert "private_photo.png" in msg and "outside" in msg and "table.mtl:3" in msg
+    if Path("/etc/passwd").is_file():
+        (spec.parent / "table.mtl").write_text("newmtl wood\nmap_Kd ../../../../../../../../etc/passwd\n")
+        assert "outside" in one_message(spec)
+
+
+def test_a_link_out_of_the_folder_is_refused_and_a_subfolder_is_fine(tmp_path):
+    outside = small_png(tmp_path / "private.png")
+    spec = obj_scene(tmp_path / "scene", mtl="newmtl wood\nKd 0.8 0.8 0.8\nmap_Kd textures/wood.png\n")
+    (spec.parent / "textures").mkdir()
+    small_png(spec.parent / "textures" / "wood.png")
+    compile_spec(load_spec(spec))  # a texture in a subfolder is inside
+    (spec.parent / "textures" / "wood.png").unlink()
+    (spec.parent / "textures" / "wood.png").symlink_to(outside)
+    assert "outside" in one_message(spec)
+
+
+def test_an_mtllib_outside_its_folder_is_refused(tmp_path):
+    (tmp_path / "lib.mtl").write_text("newmtl wood\nKd 0.1 0.2 0.3\n")
+    spec = obj_scene(tmp_path / "s", obj=OBJ.replace("mtllib table.mtl", "mtllib ../lib.mtl"))
+    msg = one_message(spec)
+    assert "lib.mtl" in msg and "outside" in msg and "table.obj:1" in msg
+
+
+def _gltf(folder: Path, **change) -> Path:
+    """A one-triangle glTF (external buffer tri.bin) named room.gltf, with ``change`` applied to its JSON."""
+    folder.mkdir(parents=True, exist_ok=True)
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 0, -1]], np.float32)
+    (folder / "tri.bin").write_bytes(pos.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b"\0\0")
+    doc = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "floor", "mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"uri": "tri.bin", "byteLength": 44}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, -1], "max": [1, 0, 0]},
+                      {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}],
+    }
+    for key, value in change.items():
+        doc[key] = value(doc) if callable(value) else value
+    path = folder / "room.gltf"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def _gltf_spec(folder: Path) -> Path:
+    spec = folder / "spec.yaml"
+    spec.write_text(SPEC.replace("file: scene.yaml", "file: room.gltf"))
+    return spec
+
+
+def test_a_gltf_buffer_outside_its_folder_is_refused(tmp_path):
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(b"\x01" * 44)
+    _gltf(tmp_path / "s", buffers=[{"uri": "../secret.bin", "byteLength": 44}])
+    msg = one_message(_gltf_spec(tmp_path / "s"))
+    assert "secret.bin" in msg and "outside" in msg and "buffers[0]" in msg
+    _gltf(tmp_path / "s", buffers=[{"uri": str(secret), "byteLength": 44}])
+    assert "outside" in one_message(_gltf_spec(tmp_path / "s"))
+
+
+def _with_image(uri: str):
+    def change(doc):
+        doc["images"] = [{"uri": uri}]
+        doc["textures"] = [{"source": 0}]
+        doc["materials"] = [{"name": "m", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["meshes"][0]["primitives"][0]["material"] = 0
+        return doc["meshes"]
+    return change
+
+
+@pytest.mark.parametrize("image, says", [("notes.png", "not an image"), ("../out.png", "outside"),
+                                         ("big.png", "12000 x 12000")])
+def test_a_gltf_image_that_cannot_be_used_is_an_error(tmp_path, image, says):
+    folder = tmp_path / "s"
+    _gltf(folder, meshes=_with_image(image))
+    (folder / "notes.png").write_text("not a picture at all\n")
+    small_png(tmp_path / "out.png")
+    png_header(folder / "big.png", 12000, 12000)
+    msg = one_message(_gltf_spec(folder))
+    assert says in msg and "images[0]" in msg and "room.gltf" in msg
+
+
+def test_a_urdf_mesh_outside_its_folder_is_refused(tmp_path):
+    (tmp_path / "part.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 3\n")
+    folder = tmp_path / "s"
+    spec = obj_scene(folder)
+    (folder / "thing.urdf").write_text('<robot name="t"><link name="l"><visual><geometry>'
+                                       '<mesh filename="../part.obj"/></geometry></visual></link></robot>\n')
+    (folder / "scene.yaml").write_text(SCENE.replace("source: table.obj", "source: thing.urdf"))
+    msg = one_message(spec)
+    assert "part.obj" in msg and "outside" in msg and "thing.urdf" in msg
+
+
+def test_a_ply_texture_outside_its_folder_is_refused(tmp_path):
+    small_png(tmp_path / "private.png")
+    folder = tmp_path / "s"
+    spec = obj_scene(folder)
+    (folder / "part.ply").write_text("ply\nformat ascii 1.0\ncomment TextureFile ../private.png\nelement vertex 3\n"
+                                     "property float x\nproperty float y\nproperty float z\nproperty float s\n"
+                                     "property float t\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                     "end_header\n0 0 0 0 0\n0.1 0 0 1 0\n0 0.1 0 0 1\n3 0 1 2\n")
+    msg = one_message(spec, "objects.meshes=[{path: part.ply, unit: m}]")
+    assert "private.png" in msg and "outside" in msg
+
+
+# --------------------------------------------------------------------------- 9. broken glTF nodes and lights
+
+
+def _nodes(*nodes):
+    def change(doc):
+        doc["scenes"] = [{"nodes": [0]}]
+        return list(nodes)
+    return change
+
+
+def _lit(light: dict):
+    def change(doc):
+        doc["extensions"] = {"KHR_lights_punctual": {"lights": [light]}}
+        doc["extensionsUsed"] = ["KHR_lights_punctual"]
+        return [{"name": "floor", "mesh": 0, "children": [1]},
+                {"name": "lamp", "translation": [0, 2, 0], "extensions": {"KHR_lights_punctual": {"light": 0}}}]
+    return change
+
+
+@pytest.mark.parametrize("nodes, says", [
+    (_nodes({"name": "a", "mesh": 0, "children": [1]}, {"name": "b", "children": [0]}), "reached twice"),
+    (_nodes({"name": "far", "mesh": 0, "translation": [1e30, 0, 0]}), "from the origin"),
+    (_nodes({"name": "flat", "mesh": 0, "scale": [0, 1, 1]}), "flattens"),
+    (_nodes({"name": "huge", "mesh": 0, "scale": [1e20, 1e20, 1e20]}), "from the origin"),
+    (_nodes({"name": "nan", "mesh": 0, "matrix": [float("nan")] * 16}), "NaN"),
+    (_lit({"type": "point", "intensity": 1e308}), "intensity"),
+    (_lit({"type": "point", "color": [float("nan"), 1, 1]}), "color"),
+])
+def test_a_broken_gltf_node_or_light_is_refused_by_validate_naming_it(tmp_path, nodes, says):
+    folder = tmp_path / "s"
+    _gltf(folder, nodes=nodes)
+    r = cli("validate", _gltf_spec(folder), timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert "room.gltf" in r.stderr and says in r.stderr and "Traceback" not in r.stderr
+    assert "nodes[" in r.stderr or "lights[" in r.stderr
+
+
+def test_a_gltf_light_index_that_is_not_a_number_is_not_quoted(tmp_path):
+    folder = tmp_path / "s"
+
+    def change(doc):
+        _lit({"type": "point"})(doc)
+        return [{"name": "floor", "mesh": 0, "children": [1]},
+                {"name": "lamp", "extensions": {"KHR_lights_punctual": {"light": "SECRET"}}}]
+
+    _gltf(folder, nodes=change, extensions={"KHR_lights_punctual": {"lights": [{"type": "point"}]}})
+    r = cli("validate", _gltf_spec(folder), timeout=60)
+    assert r.returncode == 2 and "nodes[1].extensions.KHR_lights_punctual.light" in r.stderr
+    assert "SECRET" not in r.stderr and "Traceback" not in r.stderr

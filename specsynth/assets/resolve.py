@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_write_bytes
+from ..files import not_a_file
 from ..model.colour import linear_to_srgb, srgb_to_linear
 from ..model.conventions import rpy_matrix
 from ..model.ir import MaterialIR
@@ -40,9 +41,10 @@ from .library.hdris import (
     builtin_hdris,
     studiolights_dir,
 )
-from .meshfiles import ply, single
+from .meshfiles import bake, ply, single
+from .meshfiles import obj as obj_reader
 from .meshfiles import urdf as urdf_reader
-from .meshfiles.part import MeshFileError
+from .meshfiles.part import MeshFileError, read_file, referenced_file
 from .meshfiles.sniff import check_mesh_file
 from .meshio import MeshData, MeshFormatError, mesh_bytes
 from .repair import drop_overlapping
@@ -112,12 +114,20 @@ def _digest_of(path: str, mtime_ns: int, size: int) -> str:
 
 
 def file_digest(path: Path, what: str | None = None) -> str:
-    """sha256 of a file's bytes, memoised by (path, mtime, size)."""
-    try:
-        st = os.stat(path)
-    except OSError as e:
-        raise AssetError(f"{what or path}: file not found: {path}") from e
+    """sha256 of a file's bytes, memoised by (path, mtime, size); only a regular file is opened."""
+    require_file(path, what)
+    st = os.stat(path)
     return _digest_of(str(Path(path).resolve()), st.st_mtime_ns, st.st_size)
+
+
+def require_file(path: Path, what: str | None = None) -> None:
+    """AssetError naming ``path`` and what it is (missing, a folder, a FIFO, a device) unless it is
+    a regular file: checked before anything opens it, which would hang on a FIFO or /dev/zero."""
+    problem = not_a_file(path)
+    if problem == "not found":
+        raise AssetError(f"{what or path}: file not found: {path}")
+    if problem is not None:
+        raise AssetError(f"{what or path}: {path} is {problem}")
 
 
 def _hash_json(obj) -> str:
@@ -154,8 +164,7 @@ def resolve_data_ref(ref: str, base: Path, what: str) -> Path:
         p = pybullet_data_root() / ref.split(":", 1)[1]
     else:
         p = expand_path(ref, base, what)
-    if not p.is_file():
-        raise AssetError(f"{what}: file not found: {p}")
+    require_file(p, what)
     return p
 
 
@@ -254,23 +263,38 @@ def _builtin_def(name: str) -> _Builtin:
 
 
 def _mtl_texture(obj_path: Path) -> tuple[Path | None, tuple[float, float, float] | None]:
-    """(map_Kd texture, Kd colour) of an OBJ's first material library, from the files' text."""
+    """(map_Kd texture, Kd colour) of an OBJ's first material library; the texture checked."""
     try:
-        text = obj_path.read_text(errors="replace")
-    except OSError:
+        return _first_mtl_texture(obj_path)
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
+
+
+def _first_mtl(obj_path: Path) -> Path | None:
+    statements = obj_reader.mtllib_statements(obj_path)
+    if not statements:
+        return None
+    lineno, name = statements[0]
+    return referenced_file(obj_path, name, f"{obj_path}:{lineno}: mtllib")
+
+
+def _first_mtl_texture(obj_path: Path):
+    mtl = _first_mtl(obj_path)
+    if mtl is None:
         return None, None
-    m = re.search(r"^\s*mtllib\s+(.+?)\s*$", text, re.M)
-    if not m:
-        return None, None
-    mtl = obj_path.parent / m.group(1)
-    if not mtl.is_file():
-        return None, None
-    mt = mtl.read_text(errors="replace")
+    mt = read_file(mtl).decode("utf-8", errors="replace")
     tex = re.search(r"^\s*map_Kd\s+(?:-\S+\s+\S+\s+)*(.+?)\s*$", mt, re.M)
     kd = re.search(r"^\s*Kd\s+(\S+)\s+(\S+)\s+(\S+)", mt, re.M)
-    tex_path = obj_path.parent / tex.group(1) if tex else None
-    return (tex_path if tex_path is not None and tex_path.is_file() else None,
-            tuple(float(x) for x in kd.groups()) if kd else None)
+    tex_path = None
+    if tex:
+        tex_path = obj_reader.texture_file(mtl, tex.group(1), mt.count("\n", 0, tex.start()) + 1, "map_Kd")
+    colour = None
+    if kd:
+        try:
+            colour = tuple(float(x) for x in kd.groups())
+        except ValueError:
+            raise MeshFileError(f"{mtl}:{mt.count(chr(10), 0, kd.start()) + 1}: Kd: expected 3 numbers") from None
+    return tex_path, colour
 
 
 # --------------------------------------------------------------------------- mesh readers
@@ -285,8 +309,7 @@ def parse_urdf(path: Path) -> list[urdf_reader.Visual]:
 
 def read_any_mesh(path: Path) -> tuple[MeshData, str | None]:
     """Read a PLY/OBJ/GLB/STL in its own units -> (mesh, texture named by a PLY header)."""
-    if not path.is_file():
-        raise AssetError(f"{path}: file not found")
+    require_file(path)
     if path.stat().st_size == 0:
         raise AssetError(f"{path}: empty file")
     if path.suffix.lower() not in (".ply", ".obj", ".glb", ".gltf", ".stl", ".off"):
@@ -408,7 +431,8 @@ class _Source:
             return _mesh_and_material_files(root / b.mesh, self.label)
         files = [self.path]
         tex = _bop_texture_path(self.path)
-        if tex is not None and tex.is_file():
+        if tex is not None:
+            check_texture(tex, self.label)
             files.append(tex)
         return files
 
@@ -427,26 +451,22 @@ class _Source:
 
 
 def _mesh_and_material_files(mesh: Path, what: str) -> list[Path]:
-    if not mesh.is_file():
-        raise AssetError(f"{what}: mesh file not found: {mesh}")
+    require_file(mesh, f"{what}: mesh file")
     try:
         check_mesh_file(mesh, what)
+        out = [mesh]
+        if mesh.suffix.lower() == ".obj":
+            mtl = _first_mtl(mesh)
+            tex, _ = _first_mtl_texture(mesh)
+            out += [p for p in (mtl, tex) if p is not None]
     except MeshFileError as e:
         raise AssetError(str(e)) from None
-    out = [mesh]
-    if mesh.suffix.lower() == ".obj":
-        tex, _ = _mtl_texture(mesh)
-        m = re.search(rb"^\s*mtllib\s+(.+?)\s*$", mesh.read_bytes(), re.M)
-        if m and (mesh.parent / m.group(1).decode(errors="replace")).is_file():
-            out.append(mesh.parent / m.group(1).decode(errors="replace"))
-        if tex is not None:
-            out.append(tex)
     return out
 
 
-def _bop_texture_path(ply: Path) -> Path | None:
+def _bop_texture_name(ply: Path) -> str | None:
     """Texture a PLY header names, read from the header only."""
-    if ply.suffix.lower() != ".ply":
+    if ply.suffix.lower() != ".ply" or not_a_file(ply) is not None:
         return None
     try:
         with open(ply, "rb") as f:
@@ -454,7 +474,18 @@ def _bop_texture_path(ply: Path) -> Path | None:
     except OSError:
         return None
     m = re.search(rb"^comment\s+TextureFile\s+(.+?)\s*$", head, re.M | re.I)
-    return ply.parent / m.group(1).decode(errors="replace") if m else None
+    return m.group(1).decode(errors="replace") if m else None
+
+
+def _bop_texture_path(ply: Path) -> Path | None:
+    """The texture a PLY header names, checked (in the PLY's folder); None when it is missing."""
+    name = _bop_texture_name(ply)
+    if name is None:
+        return None
+    try:
+        return referenced_file(ply, name, f"{ply}: comment TextureFile")
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
 
 
 def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[int], str | None]:
@@ -507,8 +538,9 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
         folder, ids, _ = _bop_folder(objects, spec_dir)
         for i in ids:
             p = folder / f"obj_{i:06d}.ply"
-            if not p.is_file():
+            if not_a_file(p) == "not found":
                 raise AssetError(f"obj_{i:06d}: model file {p} is missing (listed in models_info.json)")
+            require_file(p, f"obj_{i:06d}")
             out.append(_Source(f"obj_{i:06d}", "bop", i, p, "mm", str(p)))
             used.add(i)
     builtins = [b if isinstance(b, spec_mod.BuiltinObject) else spec_mod.BuiltinObject(name=b)
@@ -536,8 +568,7 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
             src = _Source(item.name, "builtin", oid, path, "m", f"pybullet_data:{item.name}", b)
         else:
             p = expand_path(item.path, spec_dir, f"mesh {item.path!r}")
-            if not p.is_file():
-                raise AssetError(f"mesh {item.path!r}: file not found: {p}")
+            require_file(p, f"mesh {item.path!r}")
             src = _Source(item.name or f"obj_{oid:06d}", "mesh", oid, p, item.unit, str(p))
         if src.name in names:
             raise AssetError(f"object name {src.name!r} appears twice in 'objects'")
@@ -564,8 +595,8 @@ def _convert(src: _Source, cache: Path) -> tuple[MeshData, str | None, tuple[flo
     mesh = finish_mesh(mesh, src.label)
     texture = None
     if tex_name:
-        tex = src.path.parent / tex_name
-        if tex.is_file():
+        tex = _bop_texture_path(src.path)
+        if tex is not None:
             check_texture(tex, src.label)
             texture = str(tex)
         else:
@@ -659,14 +690,12 @@ def _mean_linear_colour(path: Path) -> np.ndarray:
 
 
 def check_texture(path: Path, what: str) -> None:
-    """A texture that exists must decode: a corrupt one would render as garbage or crash a worker."""
-    from PIL import Image
-
+    """A texture must be an image that decodes within the pixel limit: a corrupt one would render
+    as garbage or crash a worker, a huge one fill its memory (``bake.check_image``)."""
     try:
-        with Image.open(path) as im:
-            im.verify()
-    except Exception as e:
-        raise AssetError(f"{what}: texture {path} is unreadable ({type(e).__name__}: {e})") from e
+        bake.check_image(path, what)
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
 
 
 def store_mesh(mesh: MeshData, key: str, cache: Path, comments: tuple[str, ...] = ()) -> tuple[Path, str]:
@@ -722,8 +751,8 @@ def _load_or_convert(src: _Source, cache: Path) -> dict:
         texture = str(store_texture(Path(texture), cache))
     tex_missing = None
     if texture is None and src.kind in ("bop", "mesh"):
-        named = _bop_texture_path(src.path)
-        tex_missing = named.name if named is not None and not named.is_file() else None
+        named = _bop_texture_name(src.path)
+        tex_missing = Path(named).name if named is not None and _bop_texture_path(src.path) is None else None
     meta = {
         "v": CONVERSION_VERSION, "mesh_key": mesh_key, "diameter": diam, "bbox_min": lo, "extents": ext,
         "texture": texture, "color": colour, "has_colors": mesh.colors is not None,

@@ -12,7 +12,10 @@ importer maps it and every texture keeps its own file:
 - ``d`` (or ``1 - Tr``) and ``map_d``: coverage, blended.
 
 A texture named by the MTL but missing is a warning, and the part falls back to ``Kd``: scenes
-exported from other machines often lose a texture or two, and a grey table beats no dataset.
+exported from other machines often lose a texture or two, and a grey table beats no dataset. One
+that is there must be an image within the pixel limit, and every file the OBJ and its MTL name
+must lie in the OBJ's (or MTL's) folder (:func:`.part.referenced_file`); trimesh, which parses the
+geometry, is handed only the checked material library and never opens a texture.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from __future__ import annotations
 import math
 import re
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +31,16 @@ import numpy as np
 from ...model.ir import MaterialIR
 from ..meshio import MeshData
 from . import bake
-from .part import MAX_TRIANGLES, MeshFileError, Part, concatenate, unique_names
+from .part import (
+    MAX_TRIANGLES,
+    MeshFileError,
+    Part,
+    checked_resolver,
+    concatenate,
+    read_file,
+    referenced_file,
+    unique_names,
+)
 
 _MAPS = {"map_Kd": "map_kd", "map_Pr": "map_pr", "map_Pm": "map_pm", "map_Bump": "map_bump", "bump": "map_bump",
          "norm": "map_bump", "map_Ke": "map_ke", "map_d": "map_d"}
@@ -50,13 +62,11 @@ class MtlMaterial:
     pm: float = 0.0
     ke: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dissolve: float = 1.0
+    lines: dict[str, int] = field(default_factory=dict)  # map attribute -> its line in the MTL
 
 
 def _text(path: Path) -> str:
-    try:
-        return path.read_bytes().decode("utf-8", errors="replace")
-    except OSError as e:
-        raise MeshFileError(f"{path}: cannot read ({e.strerror})") from None
+    return read_file(path).decode("utf-8", errors="replace")
 
 
 def _map_file(args: list[str]) -> str | None:
@@ -92,6 +102,7 @@ def parse_mtl(path: Path) -> dict[str, MtlMaterial]:
             cur.kd = _floats(args, 3, where)
         elif key in _MAPS:
             setattr(cur, _MAPS[key], _map_file(args))
+            cur.lines[_MAPS[key]] = lineno
             if _MAPS[key] == "map_bump" and "-bm" in args[:-1]:
                 cur.bump_scale = _floats(args[args.index("-bm") + 1 :], 1, where)[0]
         elif key == "Ns":
@@ -109,42 +120,72 @@ def parse_mtl(path: Path) -> dict[str, MtlMaterial]:
     return mats
 
 
-def mtl_libraries(obj_path: Path) -> list[Path]:
-    """The material libraries an OBJ names. A named library that is missing while the OBJ's own
-    stem ``<name>.mtl`` sits beside it (exporters that renamed the file, e.g. Sweet Home 3D's
-    ``kids_shelves_sh3d.mtl`` shipped as ``kids_shelves.mtl``) is read from there instead."""
+def mtllib_statements(obj_path: Path) -> list[tuple[int, str]]:
+    """(line, name as written) of every ``mtllib`` statement of an OBJ."""
+    text = _text(obj_path)
+    return [(text.count("\n", 0, m.start()) + 1, m.group(1))
+            for m in re.finditer(r"^[ \t]*mtllib[ \t]+(.+?)[ \t]*$", text, re.M)]
+
+
+def mtl_libraries(obj_path: Path) -> list[tuple[str, Path]]:
+    """(name as written, file) of each material library an OBJ names; a missing one is returned
+    as the path it would have (its parts then render grey). A named library that is missing while
+    the OBJ's own stem ``<name>.mtl`` sits beside it (exporters that renamed the file, e.g. Sweet
+    Home 3D's ``kids_shelves_sh3d.mtl`` shipped as ``kids_shelves.mtl``) is read from there instead."""
     libs = []
-    for m in re.finditer(r"^[ \t]*mtllib[ \t]+(.+?)[ \t]*$", _text(obj_path), re.M):
-        lib = obj_path.parent / m.group(1)
-        own = obj_path.with_suffix(".mtl")
-        libs.append(own if not lib.is_file() and own.is_file() else lib)
+    for lineno, name in mtllib_statements(obj_path):
+        where = f"{obj_path}:{lineno}: mtllib"
+        lib = referenced_file(obj_path, name, where)
+        if lib is None:
+            own = referenced_file(obj_path, obj_path.with_suffix(".mtl").name, where)
+            lib = own if own is not None else obj_path.parent / name
+        libs.append((name, lib))
     return libs
 
 
+def map_statements(mtl: Path) -> list[tuple[int, str]]:
+    """(line, file name) of every map statement of an MTL (``map_Kd -s 2 2 wood.png`` -> wood.png)."""
+    out = []
+    for lineno, line in enumerate(_text(mtl).splitlines(), 1):
+        parts = line.split()
+        if parts and parts[0].startswith(("map_", "bump", "norm")) and len(parts) > 1:
+            out.append((lineno, parts[-1]))
+    return out
+
+
 def texture_path(mtl: Path, name: str) -> Path:
+    """Where a map statement's file would be, unchecked (whether a library model has a texture)."""
     return mtl.parent / name.replace("\\", "/")
 
 
+def texture_file(mtl: Path, name: str, lineno: int | str, what: str = "map") -> Path | None:
+    """The texture an MTL names at ``lineno``, checked (in the folder, an image within the pixel
+    limit); None when it is missing."""
+    where = f"{mtl}:{lineno}"
+    tex = referenced_file(mtl, name, where)
+    if tex is not None:
+        bake.check_image(tex, f"{where}: {what}")
+    return tex
+
+
 def source_files(path: Path) -> list[Path]:
-    """The OBJ, its material libraries and every texture they name that exists."""
+    """The OBJ, its material libraries and every texture they name that exists (each checked)."""
     out = [path]
-    for lib in mtl_libraries(path):
+    for _, lib in mtl_libraries(path):
         if not lib.is_file():
             continue
         out.append(lib)
-        for line in _text(lib).splitlines():
-            parts = line.split()
-            if parts and parts[0].startswith(("map_", "bump", "norm")) and len(parts) > 1:
-                tex = texture_path(lib, parts[-1])
-                if tex.is_file() and tex not in out:
-                    out.append(tex)
+        for lineno, name in map_statements(lib):
+            tex = texture_file(lib, name, lineno)
+            if tex is not None and tex not in out:
+                out.append(tex)
     return out
 
 
 def materials_of(path: Path) -> dict[str, tuple[MtlMaterial, Path]]:
     """Every material of the OBJ's libraries -> (material, the MTL it came from)."""
     out: dict[str, tuple[MtlMaterial, Path]] = {}
-    for lib in mtl_libraries(path):
+    for _, lib in mtl_libraries(path):
         if not lib.is_file():
             warnings.warn(f"{path}: material library {lib.name} is missing; its parts render grey", stacklevel=4)
             continue
@@ -153,14 +194,14 @@ def materials_of(path: Path) -> dict[str, tuple[MtlMaterial, Path]]:
     return out
 
 
-def _texture(path: Path, mat: MtlMaterial, lib: Path, name: str | None, kind: str, fallback: str = "ignored") -> Path | None:
+def _texture(path: Path, mat: MtlMaterial, lib: Path, attr: str, kind: str, fallback: str = "ignored") -> Path | None:
+    name = getattr(mat, attr)
     if not name:
         return None
-    tex = texture_path(lib, name)
-    if tex.is_file():
-        return tex
-    warnings.warn(f"{path}: material {mat.name!r}: {kind} texture {name} is missing; {fallback}", stacklevel=5)
-    return None
+    tex = texture_file(lib, name, mat.lines.get(attr, "?"), f"material {mat.name!r}: {kind}")
+    if tex is None:
+        warnings.warn(f"{path}: material {mat.name!r}: {kind} texture {name} is missing; {fallback}", stacklevel=5)
+    return tex
 
 
 def material_ir(path: Path, mat: MtlMaterial | None, lib: Path | None, texture_cache: Path) -> MaterialIR:
@@ -169,10 +210,10 @@ def material_ir(path: Path, mat: MtlMaterial | None, lib: Path | None, texture_c
     if mat is None:
         return MaterialIR(use_vertex_colors=False)
     what = f"{path}: material {mat.name!r}"
-    base = _texture(path, mat, lib, mat.map_kd, "base colour", "using Kd")
+    base = _texture(path, mat, lib, "map_kd", "base colour", "using Kd")
 
-    def baked(name: str | None, kind: str, make) -> str | None:
-        src = _texture(path, mat, lib, name, kind)
+    def baked(attr: str, kind: str, make) -> str | None:
+        src = _texture(path, mat, lib, attr, kind)
         if src is None:
             return None
         with Image.open(src) as im:
@@ -185,7 +226,7 @@ def material_ir(path: Path, mat: MtlMaterial | None, lib: Path | None, texture_c
     else:
         roughness = 0.5
     emission = tuple(float(max(c, 0.0)) for c in mat.ke)
-    opacity_tex = baked(mat.map_d, "coverage", lambda im: bake.channel_map(im, 3 if "A" in im.getbands() else 0, mat.dissolve, what))
+    opacity_tex = baked("map_d", "coverage", lambda im: bake.channel_map(im, 3 if "A" in im.getbands() else 0, mat.dissolve, what))
     return MaterialIR(
         base_color=(1.0, 1.0, 1.0) if base else tuple(float(np.clip(c, 0, 1)) for c in mat.kd),
         use_vertex_colors=False,
@@ -193,10 +234,10 @@ def material_ir(path: Path, mat: MtlMaterial | None, lib: Path | None, texture_c
         roughness=float(np.clip(roughness, 0, 1)),
         metallic=float(np.clip(mat.pm, 0, 1)),
         emission=emission,
-        roughness_texture=baked(mat.map_pr, "roughness", lambda im: bake.channel_map(im, 0, 1.0, what)),
-        metallic_texture=baked(mat.map_pm, "metallic", lambda im: bake.channel_map(im, 0, 1.0, what)),
-        normal_texture=baked(mat.map_bump, "normal", lambda im: bake.scaled_normal_map(im, mat.bump_scale, what)),
-        emission_texture=_str(_texture(path, mat, lib, mat.map_ke, "emission")) if any(emission) else None,
+        roughness_texture=baked("map_pr", "roughness", lambda im: bake.channel_map(im, 0, 1.0, what)),
+        metallic_texture=baked("map_pm", "metallic", lambda im: bake.channel_map(im, 0, 1.0, what)),
+        normal_texture=baked("map_bump", "normal", lambda im: bake.scaled_normal_map(im, mat.bump_scale, what)),
+        emission_texture=_str(_texture(path, mat, lib, "map_ke", "emission")) if any(emission) else None,
         alpha_mode="blend" if (mat.dissolve < 1.0 or opacity_tex) else "opaque",
         opacity=float(np.clip(mat.dissolve, 0, 1)),
         opacity_texture=opacity_tex,
@@ -211,10 +252,12 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
     import trimesh
 
     mats = materials_of(path)
+    # trimesh reads the material library (for its usemtl groups) through a resolver that serves
+    # only the checked libraries: the textures it would load are read above, checked, instead.
+    resolver = checked_resolver(path, {name: lib for name, lib in mtl_libraries(path) if lib.is_file()})
     try:
-        # skip_materials: trimesh would decode every texture; MTL is read above instead.
         loaded = trimesh.load(str(path), force="scene", process=False, group_material=True, skip_materials=False,
-                              resolver=_renamed_mtl_resolver(path))
+                              resolver=resolver)
     except Exception as e:  # trimesh raises many types for broken files
         raise MeshFileError(f"{path}: cannot read OBJ ({type(e).__name__})") from None
     groups: dict[str, list[MeshData]] = {}
@@ -245,21 +288,6 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
             ir = material_ir(path, bare, lib, texture_cache)
         parts.append(Part(name=unique, mesh=mesh, material=ir, material_name=n))
     return parts
-
-
-def _renamed_mtl_resolver(path: Path):
-    """trimesh's resolver for the OBJ's folder that, like :func:`mtl_libraries`, reads a missing
-    material library from the OBJ's own ``<stem>.mtl`` (so usemtl groups keep their names)."""
-    import trimesh
-
-    class Resolver(trimesh.resolvers.FilePathResolver):
-        def get(self, name: str):
-            own = path.with_suffix(".mtl")
-            if name.strip().endswith(".mtl") and not (path.parent / name.strip()).is_file() and own.is_file():
-                return own.read_bytes()
-            return super().get(name)
-
-    return Resolver(str(path))
 
 
 def _mesh(geom, transform) -> MeshData:
