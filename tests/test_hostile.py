@@ -363,6 +363,27 @@ def test_a_broken_gltf_node_or_light_is_refused_by_validate_naming_it(tmp_path, 
     assert "nodes[" in r.stderr or "lights[" in r.stderr
 
 
+# --------------------------------------------------------------------------- 6. a file's contents are never echoed
+
+SHADOW = "root:$6$SECRETHASH:19000:0:99999:7:::\ndaemon:*:19000:0:99999:7:::\nalice:$6$ALICEHASH:19000::::\n"
+
+
+def test_validate_of_a_file_that_is_not_a_spec_does_not_quote_it(tmp_path):
+    shadow = tmp_path / "shadow"
+    shadow.write_text(SHADOW)
+    r = cli("validate", shadow, timeout=60)
+    assert r.returncode == 2 and "not a dataset spec" in r.stderr and str(shadow) in r.stderr
+    assert not any(word in r.stderr + r.stdout for word in ("SECRETHASH", "daemon", "alice", "19000"))
+
+
+def test_a_scene_file_that_is_not_a_scene_is_not_quoted(tmp_path):
+    spec = obj_scene(tmp_path)
+    (tmp_path / "shadow").write_text(SHADOW)
+    r = cli("validate", spec, "--set", "scenes=[{file: shadow}]", timeout=60)
+    assert r.returncode == 2 and "not a scene file" in r.stderr
+    assert not any(word in r.stderr + r.stdout for word in ("SECRETHASH", "daemon", "alice", "19000"))
+
+
 def test_a_gltf_light_index_that_is_not_a_number_is_not_quoted(tmp_path):
     folder = tmp_path / "s"
 

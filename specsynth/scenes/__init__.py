@@ -164,6 +164,9 @@ def read_scene_file(path: Path) -> SceneFile:
         raise SceneError(f"{path}{_error_place(e)}: cannot parse ({_error_reason(e)})") from None
     if not isinstance(data, dict):
         raise SceneError(f"{path}: a scene file is a mapping (name, meshes, lights, world, stages)")
+    if not set(map(str, data)) & set(SceneFile.model_fields):  # some other file: its keys are not quoted back
+        raise SceneError(f"{path}: not a scene file: none of its top-level keys is a scene field (name, meshes, "
+                         "lights, world, stages); its contents are not shown")
     try:
         return SceneFile.model_validate(data)
     except ValidationError as e:

@@ -113,6 +113,7 @@ def parse_yaml(text: str, file: str) -> tuple[Any, dict[tuple, tuple[int, int]]]
         _walk(node, (), positions, problems, file, [MAX_EXPANDED_NODES])
     except _TooBig:
         raise SpecError([Problem(file, 1, 1, "", f"document expands to more than {MAX_EXPANDED_NODES} nodes (alias bomb?)")]) from None
+    _refuse_foreign(node, file)
     if problems:
         raise SpecError(problems)
     try:
@@ -124,6 +125,17 @@ def parse_yaml(text: str, file: str) -> tuple[Any, dict[tuple, tuple[int, int]]]
         kind = type(data).__name__ if data is not None else "nothing"
         raise SpecError([Problem(file, line, col, "", f"top level must be a mapping, got {kind}")])
     return data, positions
+
+
+def _refuse_foreign(node: yaml.Node, file: str) -> None:
+    """A mapping none of whose keys is a spec field is some other file (``validate /etc/shadow``):
+    its keys would come back as "unknown field" errors, quoting it line by line."""
+    if not isinstance(node, yaml.MappingNode):
+        return
+    keys = {k.value for k, _ in node.value if isinstance(k, yaml.ScalarNode)}
+    if not keys & set(DatasetSpec.model_fields):
+        raise SpecError([Problem(file, None, None, "", "not a dataset spec: none of its top-level keys is a spec field "
+                                 "(name, objects, scenes, backend, ...); its contents are not shown")])
 
 
 def parse_override(item: str) -> tuple[tuple, Any]:
