@@ -396,3 +396,73 @@ def test_a_gltf_light_index_that_is_not_a_number_is_not_quoted(tmp_path):
     r = cli("validate", _gltf_spec(folder), timeout=60)
     assert r.returncode == 2 and "nodes[1].extensions.KHR_lights_punctual.light" in r.stderr
     assert "SECRET" not in r.stderr and "Traceback" not in r.stderr
+
+
+# --------------------------------------------------------------------------- 1, 5. export yolo
+
+
+def bop_dataset(out: Path, arrangements: int = 2, views: int = 2, stereo: bool = False) -> Path:
+    """A small BOP dataset as `build` writes it: one chunk per eye, ``views`` images per
+    arrangement, one visible object each, and the Parquet images table mapping images to
+    arrangements (``images_right.parquet`` for a stereo build's right eye)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from PIL import Image
+
+    (out / "parquet").mkdir(parents=True)
+    for split, table in [("train_pbr", "images")] + ([("train_pbr_right", "images_right")] if stereo else []):
+        chunk = out / "bop" / split / "000000"
+        (chunk / "rgb").mkdir(parents=True)
+        gt, info, cams, rows = {}, {}, {}, {"rgb": [], "arr": []}
+        for im in range(arrangements * views):
+            Image.fromarray(np.full((24, 32, 3), 90, np.uint8)).save(chunk / "rgb" / f"{im:06d}.jpg")
+            gt[str(im)] = [{"obj_id": 1, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 500]}]
+            info[str(im)] = [{"bbox_visib": [4, 4, 10, 8], "px_count_visib": 80, "visib_fract": 0.9}]
+            cams[str(im)] = {"cam_K": [30, 0, 16, 0, 30, 12, 0, 0, 1], "depth_scale": 1.0}
+            rows["rgb"].append(f"bop/{split}/000000/rgb/{im:06d}.jpg")
+            rows["arr"].append(im // views)
+        for name, doc in (("scene_gt", gt), ("scene_gt_info", info), ("scene_camera", cams)):
+            (chunk / f"{name}.json").write_text(json.dumps(doc))
+        pq.write_table(pa.table({"rgb": rows["rgb"], "arr": pa.array(rows["arr"], pa.int32())}),
+                       out / "parquet" / f"{table}.parquet")
+    return out
+
+
+def export(*args) -> tuple[int, str]:
+    from specsynth.cli import main
+
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["export", "yolo", *map(str, args)])
+    return rc, err.getvalue()
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("link", ["images", "images/train_pbr", "labels/train_pbr/train_pbr_000000_000001.txt"])
+def test_export_writes_and_deletes_nothing_through_a_link_out_of_dest(tmp_path, link):
+    out = bop_dataset(tmp_path / "out")
+    dest = tmp_path / "dest"
+    assert export(out, dest) == (0, "")
+    elsewhere = tmp_path / "users_files"
+    elsewhere.mkdir()
+    (elsewhere / "train_pbr_000000_000099.jpg").write_bytes(b"the user's photo")  # a name export would delete
+    (elsewhere / "train_pbr").mkdir()
+    before = _tree(elsewhere)
+    target = dest / link
+    if target.is_dir():
+        import shutil
+
+        shutil.rmtree(target)
+    else:
+        target.unlink()
+    target.symlink_to(elsewhere / ("train_pbr" if link.count("/") == 1 else "train_pbr_000000_000099.jpg")
+                      if "/" in link else elsewhere)
+    rc, err = export(out, dest)
+    assert rc == 2 and "symbolic link out of the output folder" in err and link.split("/")[-1] in err
+    assert _tree(elsewhere) == before

@@ -24,6 +24,7 @@ from typing import Sequence
 
 import yaml
 
+from ..files import UnsafeOutput, refuse_links_out
 from .coco import coco_box
 from .dataset import place_file, write_if_changed
 from .qa import BopImage, list_images
@@ -124,12 +125,19 @@ def _yolo_split(img: BopImage, val_split: str | None, val_groups: set[str], grou
 
 
 def _check_dest(dest: Path, out: Path) -> None:
+    """DEST follows the rules of a build's --out: ours or empty, and nothing in it links elsewhere
+    (``images -> /data`` would carry the copies and the stale-file deletes out of it)."""
     if dest.is_symlink():
         raise ExportError(f"{dest}: is a symbolic link; give a real folder")
     if dest.resolve() == out.resolve() or out.resolve() in dest.resolve().parents:
         raise ExportError(f"{dest}: must not be inside the dataset folder {out}")
     if dest.exists() and any(dest.iterdir()) and not (dest / "data.yaml").is_file():
         raise ExportError(f"{dest}: exists and is not a YOLO export (no data.yaml); give an empty or new folder")
+    if dest.exists():
+        try:
+            refuse_links_out(dest)
+        except UnsafeOutput as e:
+            raise ExportError(str(e)) from None
 
 
 def export_yolo(
