@@ -466,3 +466,64 @@ def test_export_writes_and_deletes_nothing_through_a_link_out_of_dest(tmp_path, 
     rc, err = export(out, dest)
     assert rc == 2 and "symbolic link out of the output folder" in err and link.split("/")[-1] in err
     assert _tree(elsewhere) == before
+
+
+def test_export_keeps_both_eyes_of_an_arrangement_in_one_split(tmp_path):
+    out = bop_dataset(tmp_path / "out", arrangements=4, views=2, stereo=True)
+    assert export(out, tmp_path / "dest", "--val-fraction", "0.5")[0] == 0
+    split_of_arr: dict[int, set[str]] = {}
+    for p in (tmp_path / "dest" / "labels").rglob("*.txt"):
+        split_of_arr.setdefault(int(p.stem[-6:]) // 2, set()).add("val" if p.parent.name == "val" else "train")
+    assert len(split_of_arr) == 4 and all(len(s) == 1 for s in split_of_arr.values())
+    assert sum(s == {"val"} for s in split_of_arr.values()) == 2
+    assert len(list((tmp_path / "dest" / "labels" / "val").iterdir())) == 8  # 2 arrangements x 2 views x 2 eyes
+
+
+@pytest.mark.parametrize("arrangements, option", [(2, ("--val-fraction", "0.9")), (1, ("--val-fraction", "0.2")),
+                                                   (2, ("--val", "train_pbr"))])
+def test_export_that_leaves_nothing_to_train_on_is_refused_before_writing(tmp_path, arrangements, option):
+    out = bop_dataset(tmp_path / "out", arrangements=arrangements)
+    dest = tmp_path / "dest"
+    rc, err = export(out, dest, *option)
+    assert rc == 2 and "nothing is left to train on" in err
+    assert not dest.exists()
+    assert export(out, dest)[0] == 0
+
+
+@pytest.mark.parametrize("value", ["-1", "2", "nan", "inf"])
+def test_export_min_visib_must_be_a_fraction(tmp_path, value):
+    rc, err = export(bop_dataset(tmp_path / "out"), tmp_path / "dest", f"--min-visib={value}")
+    assert rc == 2 and "--min-visib" in err and not (tmp_path / "dest").exists()
+
+
+def test_export_names_a_missing_rgb_file(tmp_path):
+    out = bop_dataset(tmp_path / "out")
+    (out / "bop" / "train_pbr" / "000000" / "rgb" / "000002.jpg").unlink()
+    rc, err = export(out, tmp_path / "dest")
+    assert rc == 2 and "000002" in err and "no RGB file" in err
+
+
+def test_export_into_a_file_is_refused(tmp_path):
+    (tmp_path / "dest").write_text("mine")
+    rc, err = export(bop_dataset(tmp_path / "out"), tmp_path / "dest")
+    assert rc == 2 and "is a file, not a folder" in err and (tmp_path / "dest").read_text() == "mine"
+
+
+def test_export_does_not_quote_an_obj_id(tmp_path):
+    out = bop_dataset(tmp_path / "out")
+    gt = out / "bop" / "train_pbr" / "000000" / "scene_gt.json"
+    gt.write_text(gt.read_text().replace('"obj_id": 1', '"obj_id": "SECRET"', 1))
+    rc, err = export(out, tmp_path / "dest")
+    assert rc == 2 and "obj_id must be an integer" in err and "SECRET" not in err
+
+
+def test_an_export_that_stopped_half_way_can_be_redone(tmp_path):
+    out = bop_dataset(tmp_path / "out")
+    bad = out / "bop" / "train_pbr" / "000000" / "rgb" / "000003.jpg"
+    good = bad.read_bytes()
+    bad.write_bytes(b"not a jpeg")
+    rc, err = export(out, tmp_path / "dest")
+    assert rc == 2 and "000003.jpg" in err and any((tmp_path / "dest" / "images").rglob("*.jpg"))
+    bad.write_bytes(good)
+    assert export(out, tmp_path / "dest") == (0, "")
+    assert (tmp_path / "dest" / "data.yaml").is_file()

@@ -63,7 +63,8 @@ def _split_dirs(out: Path) -> list[Path]:
     return sorted(chunks)
 
 
-def list_images(out: Path) -> list[BopImage]:
+def list_images(out: Path, missing: list[Path] | None = None) -> list[BopImage]:
+    """Every annotated image with an RGB file; those without one are appended to ``missing``."""
     images = []
     for chunk in _split_dirs(Path(out)):
         gt = read_json(chunk / "scene_gt.json")
@@ -74,6 +75,8 @@ def list_images(out: Path) -> list[BopImage]:
             rgb = next((chunk / "rgb" / f"{im:06d}.{e}" for e in ("jpg", "png") if (chunk / "rgb" / f"{im:06d}.{e}").is_file()), None)
             if rgb is not None:
                 images.append(BopImage(chunk, im, rgb, gt[k], info.get(k, []), cams.get(k, {})))
+            elif missing is not None:
+                missing.append(chunk / "rgb" / f"{im:06d}")
     return images
 
 

@@ -7,6 +7,12 @@ any BOP-format folder. Writes the layout Ultralytics' ``check_det_dataset`` read
     DEST/images/<split>/<bop split>_<chunk>_<im_id>.<ext>   copies, never links into OUT
     DEST/labels/<split>/<bop split>_<chunk>_<im_id>.txt     one "class cx cy w h" line per visible object
 
+DEST follows the rules of a build's ``--out``: a new folder, an empty one or an earlier export,
+with no symbolic link in it leading elsewhere. Everything that could stop an export (options, a
+missing RGB file, a split that leaves nothing to train on) is checked before the first file is
+written. A stereo build's right eye (``<split>_right``) goes with its left eye, into the same
+YOLO split as the rest of its arrangement.
+
 Boxes are the visible (modal) boxes, in COCO's pixel convention (``w = xmax - xmin + 1``, pixel
 ``i`` spanning ``[i, i + 1)``), normalised by the image size: what Ultralytics' own COCO
 converter produces. Class indices are 0-based in obj_id order.
@@ -16,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -30,6 +37,9 @@ from .dataset import place_file, write_if_changed
 from .qa import BopImage, list_images
 
 DEFAULT_MIN_VISIB = 0.1  # the COCO writer's "ignore" threshold: below it a box teaches noise
+RIGHT = "_right"  # a stereo build's right eye: split <split>_right, parquet tables *_right
+# Written before anything else: a DEST an export was interrupted in is still recognised as ours.
+MARKER = ".specsynth-yolo"
 _OURS = re.compile(r"^[A-Za-z0-9_\-]+_\d{6}_\d{6}\.(jpg|jpeg|png|txt)$")
 
 
@@ -62,22 +72,25 @@ def label_text(img: BopImage, class_of: dict[int, int], min_visib: float) -> tup
         if info.get("visib_fract", 1.0) < min_visib:
             skipped += 1
             continue
-        lines.append(yolo_line(class_of[int(g["obj_id"])], info["bbox_visib"], width, height))
+        lines.append(yolo_line(class_of[obj_id(img, g)], info["bbox_visib"], width, height))
     return "".join(line + "\n" for line in lines), len(lines), skipped
 
 
 def _image_size(img: BopImage) -> tuple[int, int]:
     from PIL import Image
 
-    with Image.open(img.rgb) as im:
-        return im.size
+    try:
+        with Image.open(img.rgb) as im:
+            return im.size
+    except (OSError, ValueError, SyntaxError) as e:  # PIL's ways of saying "not an image"
+        raise ExportError(f"{img.rgb}: unreadable image ({type(e).__name__})") from None
 
 
 def class_names(out: Path, images: Sequence[BopImage]) -> dict[int, str]:
     """obj_id -> name: every model in ``models_info.json`` (so indices do not depend on which
     objects happened to be seen), names from the COCO categories when the build wrote them."""
     bop = out / "bop"
-    ids: set[int] = {int(g["obj_id"]) for img in images for g in img.gt}
+    ids: set[int] = {obj_id(img, g) for img in images for g in img.gt}
     info = bop / "models" / "models_info.json"
     if info.is_file():
         ids |= {int(k) for k in _read_json(info)}
@@ -87,6 +100,14 @@ def class_names(out: Path, images: Sequence[BopImage]) -> dict[int, str]:
             if int(cat["id"]) in names:
                 names[int(cat["id"])] = str(cat["name"])
     return names
+
+
+def obj_id(img: BopImage, gt: dict) -> int:
+    """An annotation's obj_id; anything but an integer is named by place, never quoted."""
+    value = gt.get("obj_id") if isinstance(gt, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ExportError(f"{img.chunk / 'scene_gt.json'}: image {img.im_id}: obj_id must be an integer")
+    return value
 
 
 def _read_json(path: Path):
@@ -99,13 +120,19 @@ def _read_json(path: Path):
 def arrangement_of(out: Path) -> dict[str, int]:
     """rgb path (relative to OUT) -> arrangement, from the Parquet images table when it exists,
     so that a held-out split never shares an arrangement with the training split."""
-    table = out / "parquet" / "images.parquet"
-    if not table.is_file():
-        return {}
     import pyarrow.parquet as pq
 
-    t = pq.read_table(table, columns=["rgb", "arr"]).to_pydict()
-    return dict(zip(t["rgb"], t["arr"]))
+    found: dict[str, int] = {}
+    for table in (out / "parquet" / "images.parquet", out / "parquet" / f"images{RIGHT}.parquet"):
+        if table.is_file():
+            t = pq.read_table(table, columns=["rgb", "arr"]).to_pydict()
+            found.update(zip(t["rgb"], t["arr"]))
+    return found
+
+
+def eye_base(split: str) -> str:
+    """The split a stereo right eye belongs to (``train_pbr_right`` -> ``train_pbr``)."""
+    return split.removesuffix(RIGHT)
 
 
 def held_out(keys: Sequence[str], fraction: float) -> set[str]:
@@ -120,7 +147,7 @@ def held_out(keys: Sequence[str], fraction: float) -> set[str]:
 def _yolo_split(img: BopImage, val_split: str | None, val_groups: set[str], group_of) -> str:
     split = img.chunk.parent.name
     if val_split is not None:
-        return "val" if split == val_split else split
+        return "val" if split in (val_split, val_split + RIGHT) else split
     return "val" if group_of(img) in val_groups else split
 
 
@@ -129,15 +156,41 @@ def _check_dest(dest: Path, out: Path) -> None:
     (``images -> /data`` would carry the copies and the stale-file deletes out of it)."""
     if dest.is_symlink():
         raise ExportError(f"{dest}: is a symbolic link; give a real folder")
+    if dest.exists() and not dest.is_dir():
+        raise ExportError(f"{dest}: is a file, not a folder; give a new or empty folder")
     if dest.resolve() == out.resolve() or out.resolve() in dest.resolve().parents:
         raise ExportError(f"{dest}: must not be inside the dataset folder {out}")
-    if dest.exists() and any(dest.iterdir()) and not (dest / "data.yaml").is_file():
+    if not dest.exists():
+        return
+    if any(dest.iterdir()) and not ((dest / "data.yaml").is_file() or (dest / MARKER).is_file()):
         raise ExportError(f"{dest}: exists and is not a YOLO export (no data.yaml); give an empty or new folder")
-    if dest.exists():
-        try:
-            refuse_links_out(dest)
-        except UnsafeOutput as e:
-            raise ExportError(str(e)) from None
+    try:
+        refuse_links_out(dest)
+    except UnsafeOutput as e:
+        raise ExportError(str(e)) from None
+
+
+def _check_options(min_visib: float, val_fraction: float) -> None:
+    if not 0.0 <= val_fraction < 1.0:  # NaN fails both comparisons
+        raise ExportError(f"--val-fraction {val_fraction}: must be in [0, 1)")
+    if not (math.isfinite(min_visib) and 0.0 <= min_visib <= 1.0):
+        raise ExportError(f"--min-visib {min_visib}: must be a fraction in [0, 1]")
+
+
+def _check_rgb(missing: list[Path]) -> None:
+    if missing:
+        raise ExportError(f"{len(missing)} image(s) listed in scene_gt.json have no RGB file (the first: "
+                          f"{missing[0]}.jpg or .png); rebuild the dataset (specsynth build restores them)")
+
+
+def _check_training_left(splits: list[str], val_split: str | None, val_fraction: float, groups: int) -> None:
+    """Refused before anything is written: an export whose every image is held out has no
+    training split for data.yaml to name."""
+    if any(s != "val" for s in splits):
+        return
+    why = (f"--val {val_split!r} is the only split" if val_split is not None else
+           f"--val-fraction {val_fraction:g} of {groups} arrangement(s) holds out every one")
+    raise ExportError(f"{why}: nothing is left to train on; hold out fewer, or build more arrangements")
 
 
 def export_yolo(
@@ -145,12 +198,13 @@ def export_yolo(
     val_fraction: float = 0.0,
 ) -> YoloSummary:
     out, dest = Path(out), Path(dest)
-    if not 0.0 <= val_fraction < 1.0:
-        raise ExportError(f"--val-fraction {val_fraction}: must be in [0, 1)")
+    _check_options(min_visib, val_fraction)
     if not (out / "bop").is_dir():
         raise ExportError(f"{out}: no bop/ folder (build with outputs.bop: true)")
     _check_dest(dest, out)
-    images = list_images(out)
+    missing: list[Path] = []
+    images = list_images(out, missing)
+    _check_rgb(missing)
     if not images:
         raise ExportError(f"{out / 'bop'}: no images")
     splits = {img.chunk.parent.name for img in images}
@@ -162,14 +216,22 @@ def export_yolo(
     arr = arrangement_of(out)
 
     def group_of(img: BopImage) -> str:
+        """Both eyes of a view, and every view of an arrangement, in one group."""
+        split = eye_base(img.chunk.parent.name)
         rel = img.rgb.relative_to(out).as_posix()
-        return f"{img.chunk.parent.name}/arr={arr[rel]}" if rel in arr else rel
+        if rel in arr:
+            return f"{split}/arr={arr[rel]}"
+        return (out / "bop" / split / img.chunk.name / "rgb" / img.rgb.name).relative_to(out).as_posix()
 
-    val_groups = held_out([group_of(i) for i in images], val_fraction) if val_split is None else set()
+    groups = [group_of(i) for i in images]
+    val_groups = held_out(groups, val_fraction) if val_split is None else set()
+    placed = [_yolo_split(img, val_split, val_groups, group_of) for img in images]
+    _check_training_left(placed, val_split, val_fraction, len(set(groups)))
     summary = YoloSummary(names={class_of[i]: n for i, n in names.items()})
     keep: dict[str, set[str]] = defaultdict(set)
-    for img in images:
-        split = _yolo_split(img, val_split, val_groups, group_of)
+    dest.mkdir(parents=True, exist_ok=True)
+    write_if_changed(dest / MARKER, b"specsynth export yolo\n")
+    for img, split in zip(images, placed):
         stem = f"{img.chunk.parent.name}_{int(img.chunk.name):06d}_{img.im_id:06d}"
         text, n, skipped = label_text(img, class_of, min_visib)
         place_file(img.rgb, dest / "images" / split / (stem + img.rgb.suffix.lower()))
