@@ -52,7 +52,7 @@ def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
     if problem is not None:
         raise OSError(errno.ENOENT if problem == "not found" else errno.EINVAL, problem)
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    with os.fdopen(fd, "rb") as f:
+    with open(fd, "rb") as f:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise OSError(errno.EINVAL, "not a regular file")
