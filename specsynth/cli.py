@@ -114,7 +114,7 @@ def _summary_table(s) -> Table:
 
 
 def cmd_build(args) -> int:
-    from .run.build import build
+    from .run.build import KEPT_FAILURES, build
 
     _, graph = _compile(args.spec, args.set)
     _print_notes(graph, args)
@@ -138,8 +138,12 @@ def cmd_build(args) -> int:
                   + (f"; glossy bounces skipped in {s.glossy_bounces_skipped} render(s)" if s.glossy_bounces_skipped else ""))
     if s.render_phases:
         out.print("render worker-seconds by phase: " + phase_line(s.render_phases))
-    if s.failures:
+    if s.failures and s.kept_previous:
+        out.print(f"[red]{len(s.failures)} failed job group(s); the dataset in {args.out} is the last complete "
+                  f"one, left as it was; see {Path(args.out) / KEPT_FAILURES}[/red]")
+    elif s.failures:
         out.print(f"[red]{len(s.failures)} failed job group(s); see {Path(args.out) / 'failures.json'}[/red]")
+    if s.failures:
         for f in s.failures[:10]:
             out.print(f"  {f['stage']} {f['job']} ({f['tries']} tries): {f['error']}")
         return 1

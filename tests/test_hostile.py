@@ -527,3 +527,35 @@ def test_an_export_that_stopped_half_way_can_be_redone(tmp_path):
     bad.write_bytes(good)
     assert export(out, tmp_path / "dest") == (0, "")
     assert (tmp_path / "dest" / "data.yaml").is_file()
+
+
+# --------------------------------------------------------------------------- 4. a failed rebuild
+
+
+def _digest(out: Path) -> dict[str, bytes]:
+    return {k: v for k, v in _tree(out).items() if not k.startswith(".specsynth/")}
+
+
+def test_a_failed_rebuild_leaves_the_last_good_dataset(tmp_path):
+    """The second build's scene file is gone by the time its arrangements run: every arrange job
+    fails. The dataset of the first build stays byte for byte; a fixed rebuild then replaces it."""
+    from specsynth.cli import main
+    from specsynth.run.build import build
+
+    spec = obj_scene(tmp_path)
+    out = tmp_path / "out"
+    assert main(["build", str(spec), "--out", str(out), "--quiet"]) == 0
+    good = _digest(out)
+    assert any(k.startswith("bop/") and k.endswith(".jpg") for k in good)
+    (tmp_path / "scene2.yaml").write_text(SCENE.replace("name: s", "name: s2"))
+    spec.write_text(SPEC.replace("file: scene.yaml", "file: scene2.yaml"))
+    graph = compile_spec(load_spec(spec))
+    (tmp_path / "scene2.yaml").rename(tmp_path / "gone.yaml")
+    s = build(graph, out, jobs=1)
+    assert s.failures and {f["stage"] for f in s.failures} == {"arrange"} and s.kept_previous
+    assert _digest(out) == good
+    assert json.loads((out / ".specsynth" / "failures.json").read_text()) == s.failures
+    (tmp_path / "gone.yaml").rename(tmp_path / "scene2.yaml")
+    again = build(compile_spec(load_spec(spec)), out, jobs=1)
+    assert not again.failures and not again.kept_previous and _digest(out) != good
+    assert not (out / ".specsynth" / "failures.json").exists()
