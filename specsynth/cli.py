@@ -148,7 +148,8 @@ def cmd_build(args) -> int:
             out.print(f"  {f['stage']} {f['job']} ({f['tries']} tries): {f['error']}")
         return 1
     if not s.images:
-        print(f"error: the build wrote no image: {why_no_image(graph, s)}", file=sys.stderr)
+        kept = f"; the dataset in {args.out} is the last complete one, left as it was" if s.kept_previous else ""
+        print(f"error: the build wrote no image: {why_no_image(graph, s)}{kept}", file=sys.stderr)
         return 1
     return 0
 

@@ -559,3 +559,43 @@ def test_a_failed_rebuild_leaves_the_last_good_dataset(tmp_path):
     again = build(compile_spec(load_spec(spec)), out, jobs=1)
     assert not again.failures and not again.kept_previous and _digest(out) != good
     assert not (out / ".specsynth" / "failures.json").exists()
+
+
+# --------------------------------------------------------------------------- 10. useless specs
+
+
+@pytest.mark.parametrize("override, field, says", [
+    ("intrinsics.fx=1e-300", "intrinsics.fx", "field of view"),
+    ("intrinsics.fy=1e9", "intrinsics.fy", "field of view"),
+    ("intrinsics.distortion=[1e6, 0, 0, 0, 0]", "intrinsics.distortion", "squeezes"),
+    ("sensor={depth: {axial_noise: [1e300, 1e300]}}", "sensor.depth.axial_noise", "no sensor's"),
+])
+def test_a_spec_that_would_build_nothing_useful_is_refused_in_validate(tmp_path, override, field, says):
+    (pr,) = problems(obj_scene(tmp_path), override)
+    assert pr.path == field and says in pr.message
+
+
+def test_an_unknown_room_category_is_refused_in_validate(tmp_path):
+    from specsynth.assets.library.furniture import LibraryError, catalogue
+
+    try:
+        catalogue()
+    except LibraryError:
+        pytest.skip("no furniture catalogue installed")
+    (pr,) = problems(obj_scene(tmp_path), "scenes=[{name: random_room, room: {categories: [Kitchen, NoSuchCategory]}}]")
+    assert pr.path == "scenes.0.room.categories.1" and "NoSuchCategory" in pr.message and "Kitchen" in pr.message
+
+
+def test_a_build_that_writes_no_image_fails_and_keeps_the_last_good_dataset(tmp_path):
+    """Cameras 30-40 m from a 2 m floor see nothing: every view is dropped."""
+    from specsynth.cli import main
+
+    spec = obj_scene(tmp_path)
+    out = tmp_path / "out"
+    assert main(["build", str(spec), "--out", str(out), "--quiet"]) == 0
+    good = _digest(out)
+    r = cli("build", spec, "--out", out, "--quiet", "--set", "cameras.distance=[30, 40]", timeout=300)
+    assert r.returncode == 1 and "the build wrote no image" in r.stderr and "left as it was" in r.stderr, r.stderr
+    assert _digest(out) == good
+    r = cli("build", spec, "--out", tmp_path / "new", "--quiet", "--set", "cameras.distance=[30, 40]", timeout=300)
+    assert r.returncode == 1 and "the build wrote no image" in r.stderr and "left as it was" not in r.stderr

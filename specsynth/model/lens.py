@@ -125,6 +125,9 @@ def check(K, width: int, height: int, k, max_window: float = 4.0) -> None:
     mu, mv = xy[..., 0] * K[0, 0] + K[0, 2], xy[..., 1] * K[1, 1] + K[1, 2]
     if np.ptp(mu) > max_window * width or np.ptp(mv) > max_window * height:
         raise LensError(f"the distortion spreads the image's rays over more than {max_window:g}x its size")
+    if np.ptp(mu) * max_window < width or np.ptp(mv) * max_window < height:
+        raise LensError(f"the distortion squeezes the image's rays into less than 1/{max_window:g} of its size "
+                        "(every pixel would see the few pixels at the centre)")
 
 
 def remap_bilinear(img: np.ndarray, warp: Warp) -> np.ndarray:

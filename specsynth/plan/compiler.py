@@ -83,6 +83,22 @@ def check_objects(spec: DatasetSpec, loaded: LoadedSpec, n_models: int) -> list:
                           f"distractors), over the limit of {int(limit):,} (set SPECSYNTH_MAX_OBJECTS to raise it)")]
 
 
+def check_room_categories(ref, i: int, loaded: LoadedSpec) -> list:
+    """A located problem for each ``room.categories`` entry the furniture catalogue does not have
+    (the build would otherwise fail later, on a room that found no furniture)."""
+    if ref.room is None or not ref.room.categories:
+        return []
+    from ..assets.library.furniture import LibraryError, catalogue
+
+    try:
+        known = {item.category for item in catalogue()}
+    except LibraryError:
+        return []  # no catalogue installed: the build names it
+    return [loaded.locate(f"scenes.{i}.room.categories.{k}", f"no furniture category {name!r}; the catalogue has "
+                          f"{', '.join(sorted(known))}")
+            for k, name in enumerate(ref.room.categories) if name not in known]
+
+
 def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
     """Located problems for a camera effect the spec's backend cannot render."""
     problems = []
@@ -270,6 +286,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     for i, ref in enumerate(spec.scenes):
         try:
             scene_hashes[f"scene:{ref.ref}"] = scene_fingerprint(ref, loaded.directory)
+            problems += check_room_categories(ref, i, loaded)
             if ref.clutter != 1.0 and not generated_name(ref):
                 problems.append(loaded.locate(f"scenes.{i}.clutter", "clutter is for the built-in generated rooms "
                                               f"({', '.join(GENERATED)}); {ref.ref!r} is not one"))

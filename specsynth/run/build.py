@@ -96,8 +96,8 @@ class BuildSummary:
     # (worker-seconds / (workers x that span)); the rest is start-up, scheduling and the tail.
     run_seconds: float = 0.0
     utilisation: float = 0.0
-    # True when this build failed and the folder's last complete dataset was left as it was; the
-    # failures are then in KEPT_FAILURES, not the dataset's failures.json.
+    # True when this build failed or rendered nothing and the folder's last complete dataset was
+    # left as it was; the failures are then in KEPT_FAILURES, not the dataset's failures.json.
     kept_previous: bool = False
 
     def to_json(self) -> dict[str, Any]:
@@ -453,11 +453,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         pipe.record_timing(out)
         if until == "view":
             return summary
-        if summary.failures and (out / COMPLETE).is_file():
-            summary.kept_previous = True  # a failed rebuild must not replace the last good dataset
-            write_json(out / KEPT_FAILURES, summary.failures)
-        else:
-            _merge(graph, out, store, pipe, summary)
+        _merge(graph, out, store, pipe, summary)
         summary.wall_seconds = time.perf_counter() - t_build
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary
@@ -466,8 +462,6 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
 def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: BuildSummary) -> None:
     """Every finished render into the dataset formats, then the manifest and the output index."""
     t0 = time.perf_counter()
-    (out / COMPLETE).unlink(missing_ok=True)  # until the last file is in place
-    (out / KEPT_FAILURES).unlink(missing_ok=True)
     images, credits = [], []
     for a, views, renders in pipe.arr_jobs:
         arec = {}
@@ -482,6 +476,12 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
                 if rec.right_eye is not None:  # a stereo pair: the right eye's files are under right/
                     images.append((ImageRecord.from_json(rec.right_eye), Path(path) / "right"))
                 credits += arec.get("credits", [])
+    if (summary.failures or not images) and (out / COMPLETE).is_file():
+        summary.kept_previous = True  # a failed or empty rebuild must not replace the last good dataset
+        write_json(out / KEPT_FAILURES, summary.failures)
+        return
+    (out / COMPLETE).unlink(missing_ok=True)  # until the last file is in place
+    (out / KEPT_FAILURES).unlink(missing_ok=True)
     summary.images = len(images)
     summary.instances = sum(len(im.instances) for im, _ in images)
     _account_savings(summary, images, pipe.cached_render)
@@ -494,7 +494,7 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
     write_manifest(graph, out, pipe.arr_jobs)
     write_json(out / "failures.json", summary.failures)
     write_index(out)  # last: every output file is in place
-    if not summary.failures:
+    if images and not summary.failures:
         write_json(out / COMPLETE, {"images": summary.images})
     summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
 

@@ -345,13 +345,17 @@ class Arrangements(Strict):
 # --------------------------------------------------------------------------- cameras
 
 
+MIN_FOV_DEG, MAX_FOV_DEG = 0.5, 170.0
+
+
 class Intrinsics(Strict):
     """Pinhole camera; defaults are LM-O's (BOP)."""
 
     width: int = Field(640, ge=8, le=16384, description="Image width, pixels.")
     height: int = Field(480, ge=8, le=16384, description="Image height, pixels.")
-    fx: float = Field(572.4114, gt=0)
-    fy: float = Field(573.57043, gt=0)
+    fx: float = Field(572.4114, gt=0, description="Focal length, pixels: the horizontal field of view it gives "
+                      f"must lie in [{MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}] degrees.")
+    fy: float = Field(573.57043, gt=0, description="Focal length, pixels (vertical field of view, as fx).")
     cx: float = Field(325.2611)
     cy: float = Field(242.04899)
     clip: FloatRange(positive=True) = Field((0.01, 100.0), description="Near and far clip, metres.")
@@ -360,6 +364,18 @@ class Intrinsics(Strict):
         "normalised image coordinates, as cv2.projectPoints takes them). The image is rendered as an ideal pinhole "
         "over the distorted image's rays, then warped: colour bilinear, masks and depth nearest; cam_K stays the "
         "pinhole K and scene_camera.json adds cam_dist. Coefficients that fold the image are refused.")
+
+    @field_validator("fx", "fy")
+    @classmethod
+    def _field_of_view(cls, v, info: ValidationInfo):
+        size = info.data.get("width" if info.field_name == "fx" else "height")
+        if size is None:
+            return v
+        fov = math.degrees(2 * math.atan(size / (2 * v)))
+        if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
+            raise ValueError(f"gives a field of view of {fov:.3g} degrees over {size} pixels; it must lie in "
+                             f"[{MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}] (a pinhole sees nothing useful outside)")
+        return v
 
     @field_validator("distortion")
     @classmethod
@@ -573,6 +589,9 @@ class Augment(Strict):
 # --------------------------------------------------------------------------- sensor
 
 
+MAX_AXIAL_NOISE = 1.0
+
+
 class DepthSensor(Strict):
     """An RGB-D depth camera's errors, applied to a copy of the exact depth (written to depth_noisy/)."""
 
@@ -589,6 +608,9 @@ class DepthSensor(Strict):
     def _non_negative(cls, v):
         if min(v) < 0 or not all(math.isfinite(x) for x in v):
             raise ValueError("axial noise coefficients must be finite and >= 0")
+        if max(v) > MAX_AXIAL_NOISE:  # past this the noise swamps the depth and overflows float32
+            raise ValueError(f"axial noise coefficients above {MAX_AXIAL_NOISE:g} (metres, and per square "
+                             "metre) are no sensor's")
         return v
 
 
