@@ -599,3 +599,19 @@ def test_a_build_that_writes_no_image_fails_and_keeps_the_last_good_dataset(tmp_
     assert _digest(out) == good
     r = cli("build", spec, "--out", tmp_path / "new", "--quiet", "--set", "cameras.distance=[30, 40]", timeout=300)
     assert r.returncode == 1 and "the build wrote no image" in r.stderr and "left as it was" not in r.stderr
+
+
+# --------------------------------------------------------------------------- 11. small ones
+
+
+def test_diff_skips_the_right_eyes_timings_too(tmp_path):
+    from specsynth.run.verify import compare, write_index
+
+    for side, seconds in (("a", b"1.25"), ("b", b"3.5")):
+        (tmp_path / side / "parquet").mkdir(parents=True)
+        (tmp_path / side / "parquet" / "images.parquet").write_bytes(b"same rows")
+        for name in ("timings.parquet", "timings_right.parquet"):
+            (tmp_path / side / "parquet" / name).write_bytes(b"seconds " + seconds)
+        write_index(tmp_path / side)
+    d = compare(tmp_path / "a", tmp_path / "b")
+    assert d["differ"] == [] and d["only_in_a"] == d["only_in_b"] == [] and d["recorded"]
