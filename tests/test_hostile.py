@@ -615,3 +615,37 @@ def test_diff_skips_the_right_eyes_timings_too(tmp_path):
         write_index(tmp_path / side)
     d = compare(tmp_path / "a", tmp_path / "b")
     assert d["differ"] == [] and d["only_in_a"] == d["only_in_b"] == [] and d["recorded"]
+
+
+def _children(pid: int) -> list[str]:
+    try:
+        return Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs /proc to see the workers start")
+def test_ctrl_c_of_a_build_with_workers_prints_no_traceback(tmp_path):
+    """SIGINT to the whole process group, as a terminal's Ctrl-C sends it, while the pool's
+    workers are still importing (where an interrupted worker printed its traceback)."""
+    import signal
+    import time
+
+    spec = obj_scene(tmp_path)
+    spec.write_text(SPEC.replace("count: 1", "count: 40"))
+    p = subprocess.Popen([sys.executable, "-m", "specsynth.cli", "build", str(spec), "--out", str(tmp_path / "out"),
+                          "--quiet", "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_children(p.pid)) < 2 and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.05)
+        time.sleep(0.3)
+        os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    assert p.returncode == 130 and "interrupted" in err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err

@@ -45,7 +45,12 @@ _startup_notices: list[notices.Notice] = []
 
 
 def init_pool_worker(ctx: BuildContext, parent: int) -> None:
-    """Initializer of the local pool's worker processes."""
+    """Initializer of the local pool's worker processes. Ctrl-C is the build's to handle: it stops
+    the pool; a worker interrupted mid-job would only print a traceback."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the parent while it spawned us
     die_with_parent(parent)
     with notices.Collector() as c:
         init_worker(ctx)

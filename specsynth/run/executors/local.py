@@ -8,10 +8,30 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
+import threading
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 
 from .. import tasks
+
+
+@contextmanager
+def deaf_children():
+    """SIGINT blocked in this thread while the pool starts workers (it does so in ``submit``):
+    they inherit the mask through exec, so a Ctrl-C to the terminal's process group cannot
+    interrupt one in its imports and print its traceback. The build's own process still gets
+    the signal (another of its threads takes it) and stops the pool; a worker sets SIGINT to be
+    ignored and unblocks it once started (:func:`.tasks.init_pool_worker`)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 class LocalExecutor:
@@ -35,14 +55,15 @@ class LocalExecutor:
 
     def submit(self, fn, *args) -> Future:
         if self._pool is not None:
-            try:
-                return self._pool.submit(fn, *args)
-            except BrokenProcessPool:
-                # A worker died (e.g. a renderer segfault): replace the pool; the build's retry
-                # logic re-submits the jobs that have no finished result.
-                self._pool.shutdown(wait=False, cancel_futures=True)
-                self._pool = self._new_pool()
-                return self._pool.submit(fn, *args)
+            with deaf_children():
+                try:
+                    return self._pool.submit(fn, *args)
+                except BrokenProcessPool:
+                    # A worker died (e.g. a renderer segfault): replace the pool; the build's retry
+                    # logic re-submits the jobs that have no finished result.
+                    self._pool.shutdown(wait=False, cancel_futures=True)
+                    self._pool = self._new_pool()
+                    return self._pool.submit(fn, *args)
         fut: Future = Future()
         try:
             fut.set_result(fn(*args))
