@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import gc
+import os
 import time
 import warnings
 from typing import Any, ClassVar
 
 import numpy as np
 
+from specsynth.assets.library.cache import cache_dir
 from specsynth.assets.meshio import MeshData, read_mesh
 from specsynth.model.colour import check_finite, linear_to_srgb8
 from specsynth.model.conventions import cam_to_world, opencv_to_mitsuba_c2w
@@ -49,10 +51,18 @@ def _options(options: Any) -> MitsubaOptions:
     return MitsubaOptions.model_validate({**dict(options), "name": "mitsuba"})
 
 
+def keep_kernels_in_our_cache() -> None:
+    """Dr.Jit's disk cache of compiled kernels under specsynth's cache (``<cache>/drjit``), not
+    ``~/.drjit``: a build writes only to --out and the cache. Read by Dr.Jit when it first
+    starts in the process, so set before Mitsuba is imported; a DRJIT_CACHE_DIR the user set wins."""
+    os.environ.setdefault("DRJIT_CACHE_DIR", str(cache_dir() / "drjit"))
+
+
 class MitsubaBackend:
     name: ClassVar[str] = "mitsuba"
 
     def __init__(self, options: Any = None, *, threads: int = 0) -> None:
+        keep_kernels_in_our_cache()
         self.options = _options(options)
         self.variant, self.skipped_variants = choose_variant(self.options.variant)
         import drjit as dr
