@@ -539,7 +539,7 @@ def _fit_probe(args, edits, log) -> list:
     out = cache_dir() / "fit-probes" / keys.digest(loaded.spec.model_dump(mode="json"))[:16]
     log(f"probe: {arrangements * 4} views of {args.spec} with the fitted cameras and a neutral sensor, into {out}")
     s = build(graph, out, jobs=args.jobs or 1, console=None)
-    if not s.images:
+    if not s.images and not s.kept_previous:  # kept: the folder's complete probe of this same spec
         raise FileNotFoundError(f"the probe build of {args.spec} wrote no image (see {out / 'failures.json'})")
 
     def masks(im) -> list:
