@@ -154,10 +154,10 @@ def test_an_obj_naming_a_fifo_is_refused_by_every_command(tmp_path, statement, c
 def test_object_counts_are_bounded_before_any_work(tmp_path):
     spec = obj_scene(tmp_path)
     (pr,) = problems(spec, "objects.instances=[1000000,1000000]")
-    assert pr.path == "objects.instances" and "1000" in pr.message
+    assert pr.path == "objects.instances" and "at most 1000 instances" in pr.message
     (pr,) = problems(spec, "objects.instances=[0,300]", "arrangements.distractors={count: [300, 300]}")
     assert pr.path == "objects.instances" and "objects per arrangement" in pr.message
-    assert "SPECSYNTH_MAX_OBJECTS" in pr.message
+    assert "SPECSYNTH_MAX_OBJECTS" in pr.message and "over the limit of 500" in pr.message
 
 
 # --------------------------------------------------------------------------- 11. what a scene file is
@@ -185,7 +185,7 @@ def test_a_huge_obj_texture_is_refused_in_validate(tmp_path):
     spec = obj_scene(tmp_path)
     png_header(tmp_path / "wood.png", 20000, 20000)
     msg = one_message(spec)
-    assert "wood.png" in msg and "pixel limit" in msg
+    assert "wood.png" in msg and "pixel limit" in msg and "8192 x 8192" in msg
 
 
 def test_a_huge_roughness_map_is_a_located_error(tmp_path):
@@ -347,11 +347,11 @@ def _lit(light: dict):
 
 @pytest.mark.parametrize("nodes, says", [
     (_nodes({"name": "a", "mesh": 0, "children": [1]}, {"name": "b", "children": [0]}), "reached twice"),
-    (_nodes({"name": "far", "mesh": 0, "translation": [1e30, 0, 0]}), "from the origin"),
+    (_nodes({"name": "far", "mesh": 0, "translation": [1e30, 0, 0]}), "beyond the 10,000 m"),
     (_nodes({"name": "flat", "mesh": 0, "scale": [0, 1, 1]}), "flattens"),
     (_nodes({"name": "huge", "mesh": 0, "scale": [1e20, 1e20, 1e20]}), "from the origin"),
     (_nodes({"name": "nan", "mesh": 0, "matrix": [float("nan")] * 16}), "NaN"),
-    (_lit({"type": "point", "intensity": 1e308}), "intensity"),
+    (_lit({"type": "point", "intensity": 1e308}), "intensity must be a number in [0, 1e+07]"),
     (_lit({"type": "point", "color": [float("nan"), 1, 1]}), "color"),
 ])
 def test_a_broken_gltf_node_or_light_is_refused_by_validate_naming_it(tmp_path, nodes, says):
@@ -565,10 +565,10 @@ def test_a_failed_rebuild_leaves_the_last_good_dataset(tmp_path):
 
 
 @pytest.mark.parametrize("override, field, says", [
-    ("intrinsics.fx=1e-300", "intrinsics.fx", "field of view"),
+    ("intrinsics.fx=1e-300", "intrinsics.fx", "it must lie in [0.5, 170]"),
     ("intrinsics.fy=1e9", "intrinsics.fy", "field of view"),
     ("intrinsics.distortion=[1e6, 0, 0, 0, 0]", "intrinsics.distortion", "squeezes"),
-    ("sensor={depth: {axial_noise: [1e300, 1e300]}}", "sensor.depth.axial_noise", "no sensor's"),
+    ("sensor={depth: {axial_noise: [1e300, 1e300]}}", "sensor.depth.axial_noise", "above 1 (metres"),
 ])
 def test_a_spec_that_would_build_nothing_useful_is_refused_in_validate(tmp_path, override, field, says):
     (pr,) = problems(obj_scene(tmp_path), override)
@@ -675,3 +675,41 @@ def test_mitsuba_keeps_drjits_kernel_cache_under_the_specsynth_cache(tmp_path):
     assert r.stdout.strip().endswith("ok"), r.stderr[-2000:]
     assert not (tmp_path / "home" / ".drjit").exists()
     assert any((tmp_path / "cache" / "drjit").iterdir())
+
+
+# --------------------------------------------------------------------------- the limits, at their edges
+
+
+def test_gltf_geometry_may_reach_10_km_from_the_origin_and_no_further(tmp_path):
+    _gltf(tmp_path / "s", nodes=_nodes({"name": "far", "mesh": 0, "translation": [9990, 0, 0]}))
+    compile_spec(load_spec(_gltf_spec(tmp_path / "s")))
+    _gltf(tmp_path / "s", nodes=_nodes({"name": "far", "mesh": 0, "translation": [10010, 0, 0]}))
+    msg = one_message(_gltf_spec(tmp_path / "s"))
+    assert "room.gltf: nodes[0] 'far'" in msg and "beyond the 10,000 m" in msg
+
+
+def test_a_gltf_light_may_be_as_bright_as_1e7_and_no_brighter(tmp_path):
+    _gltf(tmp_path / "s", nodes=_lit({"type": "spot", "intensity": 1e7}))
+    compile_spec(load_spec(_gltf_spec(tmp_path / "s")))
+    _gltf(tmp_path / "s", nodes=_lit({"type": "spot", "intensity": 1.01e7}))
+    msg = one_message(_gltf_spec(tmp_path / "s"))
+    assert "KHR_lights_punctual.lights[0]" in msg and "intensity must be a number in [0, 1e+07]" in msg
+
+
+def test_a_cameras_field_of_view_lies_in_half_a_degree_to_170_degrees(tmp_path):
+    import math
+
+    spec = obj_scene(tmp_path)
+    fx = lambda degrees: 64 / (2 * math.tan(math.radians(degrees) / 2))  # noqa: E731  (width 64)
+    compile_spec(load_spec(spec, [f"intrinsics.fx={fx(169.9)}", f"intrinsics.fy={fx(90)}"]))
+    compile_spec(load_spec(spec, [f"intrinsics.fx={fx(0.51)}"]))
+    for degrees in (170.1, 0.49):
+        (pr,) = problems(spec, f"intrinsics.fx={fx(degrees)}")
+        assert pr.path == "intrinsics.fx" and "it must lie in [0.5, 170]" in pr.message
+
+
+def test_depth_noise_coefficients_are_at_most_1(tmp_path):
+    spec = obj_scene(tmp_path)
+    compile_spec(load_spec(spec, ["sensor={depth: {axial_noise: [1.0, 1.0]}}"]))
+    (pr,) = problems(spec, "sensor={depth: {axial_noise: [0.001, 1.5]}}")
+    assert pr.path == "sensor.depth.axial_noise" and "above 1 (metres" in pr.message
