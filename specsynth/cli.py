@@ -1,4 +1,4 @@
-"""Command line: validate, schema, compile, plan, build, diff, scenes, view, stats, bench, export.
+"""specsynth: declarative datasets of synthetic images of object instances (commands below).
 
 Every user error (a bad spec, a missing asset, a locked output folder, a missing plugin) prints a
 located message and exits with status 2, never a traceback (use --debug for one).
@@ -633,7 +633,7 @@ def _spec_commands(sub) -> None:
     p.add_argument("spec")
     p.add_argument("--out", required=True)
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
-    p.add_argument("--executor", default="local", help="local (default) or dask://HOST:PORT")
+    p.add_argument("--executor", default="local", help="local (default), dask (a local Dask cluster) or dask://HOST:PORT (a running scheduler)")
     p.add_argument("--threads", type=int, default=None, help="renderer threads per worker (default: cores / jobs)")
     p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                    help="no progress bars and notes (same as specsynth --quiet build)")

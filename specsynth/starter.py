@@ -67,6 +67,7 @@ backend:
   name: {backend} # the renderer: `specsynth backends` lists those installed
 outputs:                       # BOP, COCO and Parquet are written by default
   image_format: jpg
+  depth_scale: 0.25            # mm per depth unit: uint16 then holds 16.4 m (room walls exceed 6.5 m)
 """
 
 _HEAD = """\

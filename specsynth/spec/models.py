@@ -505,7 +505,7 @@ PAPER_PRESETS: dict[str, QualityPreset] = {
 class Quality(Strict):
     level: Literal["low", "medium", "high", "paper_low", "paper_medium", "paper_high"] = Field(
         "low", description="low/medium/high: at least the paper presets' image error at the least cost on the "
-        "backend (its calibrated samples and denoising: `specsynth backends`, docs/quality.md); "
+        "backend (its calibrated samples and denoising, tabled in docs/quality.md); "
         "paper_low/paper_medium/paper_high: the paper's raw settings, for its experiments.")
     presets: dict[Literal["low", "medium", "high"], QualityOverride] = Field(
         default_factory=dict, description="Overrides of the paper's preset numbers, per level."
