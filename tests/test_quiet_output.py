@@ -174,3 +174,15 @@ def test_notices_are_collected_and_summarised_by_what_they_mean():
         warnings.warn("after", UserWarning)
     assert [str(x.message) for x in w] == ["after"]
     assert logging.getLogger("trimesh").propagate is True
+
+
+def test_starting_cycles_on_a_machine_without_a_gpu_driver_prints_nothing():
+    """Blender's GPU driver probes ('WARNING CUEW initialization failed') would reach the terminal of
+    every Cycles build on a CPU-only machine; starting the backend must print nothing."""
+    pytest.importorskip("specsynth_cycles")
+    code = ("from specsynth_cycles.backend import CyclesBackend\n"
+            "CyclesBackend(None, threads=1)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "CUEW" not in r.stdout + r.stderr and "HIPEW" not in r.stdout + r.stderr
+    assert r.stdout.strip() == "", r.stdout[-2000:]

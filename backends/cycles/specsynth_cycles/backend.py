@@ -158,9 +158,10 @@ class CyclesBackend:
         cy.filter_width = 1.0
         cy.volume_bounces = 0
         cy.transparent_max_bounces = 8
-        cy.denoiser = "OPENIMAGEDENOISE"
-        cy.denoising_use_gpu = self.device != "cpu"
-        cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        with _driver_probe_quiet():  # choosing the denoiser enumerates GPU devices too
+            cy.denoiser = "OPENIMAGEDENOISE"
+            cy.denoising_use_gpu = self.device != "cpu"
+            cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         r = sc.render
         # Persistent data keeps the synced scene (BVH, images) between renders; it silently ignores a
         # changed sample count (measurements.md), so _apply drops what is kept (switching it off frees
