@@ -355,3 +355,25 @@ def test_top_k_finds_the_k_largest_values(seed, n, share, levels):
 def test_percentiles_are_numpys(values, qs):
     a = np.array(values, np.float32)
     np.testing.assert_allclose(imagestats.percentiles(a, qs), np.percentile(a, qs), rtol=1e-6, atol=1e-4)
+
+
+def test_a_bad_bop_models_folder_is_located_at_its_own_field(lmo_root, tmp_path):
+    """The compiler locates an object-resolution error at the field the error names (carried by the
+    error, not searched for in its text): objects.path's line, objects.ids' line."""
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import SpecError, load_spec
+
+    folder = tmp_path / "models"
+    shutil.copytree(lmo_root / "models", folder)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    lines = ["version: 1", "name: t", "objects:", f"  path: {folder}", "  ids: [1, 2]",
+             "scenes: [{name: room}]", "backend: {name: photo}"]
+    spec = tmp_path / "spec.yaml"
+    for text, line, field in (("\n".join(lines), 5, "objects.ids"),
+                              ("\n".join(lines[:3] + [f"  path: {empty}"] + lines[5:]), 4, "objects.path")):
+        spec.write_text(text + "\n")
+        with pytest.raises(SpecError) as e:
+            compile_spec(load_spec(spec))
+        said = str(e.value)
+        assert f"spec.yaml:{line}:" in said and f"{field}:" in said, said

@@ -73,7 +73,12 @@ BOP_HELP = (
 
 
 class AssetError(ValueError):
-    """A missing, empty, corrupt or absurd asset; the message names the asset."""
+    """A missing, empty, corrupt or absurd asset; the message names the asset, and ``field`` the spec
+    field that named it where the raiser knows it (so the spec's line can be shown)."""
+
+    def __init__(self, message: str, field: str | None = None):
+        super().__init__(message)
+        self.field = field
 
 
 @dataclass(frozen=True)
@@ -491,28 +496,31 @@ def _bop_texture_path(ply: Path) -> Path | None:
 def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[int], str | None]:
     """(folder, obj ids, a note for the user or None). A folder without ``models_info.json`` gets
     it computed as the BOP toolkit does, cached by the models' content (``bopmodels``)."""
-    folder = expand_path(objects.path, spec_dir, f"objects.path {objects.path!r}")
+    try:
+        folder = expand_path(objects.path, spec_dir, f"objects.path {objects.path!r}")
+    except AssetError as e:
+        raise AssetError(str(e), field="objects.path") from None
     if not folder.is_dir():
-        raise AssetError(f"objects.path: BOP models folder {folder} does not exist. {BOP_HELP}")
+        raise AssetError(f"objects.path: BOP models folder {folder} does not exist. {BOP_HELP}", field="objects.path")
     info = folder / "models_info.json"
     note = None
     if info.is_file():
         try:
             ids = sorted(int(k) for k in json.loads(info.read_text()))
         except (ValueError, TypeError) as e:
-            raise AssetError(f"{info}: corrupt models_info.json ({type(e).__name__})") from None
+            raise AssetError(f"{info}: corrupt models_info.json ({type(e).__name__})", field="objects.path") from None
     else:
         ids = bopmodels.model_ids(folder)
         if not ids:
             raise AssetError(f"objects.path: {folder} has neither models_info.json nor obj_XXXXXX.ply files: "
-                             f"not a BOP models folder. {BOP_HELP}")
+                             f"not a BOP models folder. {BOP_HELP}", field="objects.path")
         _, cached = bopmodels.computed_models_info(folder, cache_dir(), _model_points)
         note = (f"objects.path: {folder} has no models_info.json; computed it for its {len(ids)} models as the "
                 f"BOP toolkit's calc_model_info.py does (cached as {cached})")
     if objects.ids is not None:
         unknown = sorted(set(objects.ids) - set(ids))
         if unknown:
-            raise AssetError(f"objects.ids: {unknown} not in {folder} (has {ids})")
+            raise AssetError(f"objects.ids: {unknown} not in {folder} (has {ids})", field="objects.ids")
         ids = sorted(set(objects.ids))
     return folder, ids, note
 
@@ -539,7 +547,8 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
         for i in ids:
             p = folder / f"obj_{i:06d}.ply"
             if not_a_file(p) == "not found":
-                raise AssetError(f"obj_{i:06d}: model file {p} is missing (listed in models_info.json)")
+                raise AssetError(f"obj_{i:06d}: model file {p} is missing (listed in models_info.json)",
+                                 field="objects.path")
             require_file(p, f"obj_{i:06d}")
             out.append(_Source(f"obj_{i:06d}", "bop", i, p, "mm", str(p)))
             used.add(i)

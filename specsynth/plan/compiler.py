@@ -263,7 +263,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         notes += bop_folder_notes(spec.objects, loaded.directory)
         problems += check_objects(spec, loaded, len(asset_hashes))
     except AssetError as e:
-        field = getattr(e, "field", None) or ("objects.path" if "objects.path" in str(e) else "objects")
+        field = e.field or "objects"
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))
         asset_hashes = {}
     # Files the spec names only by path: their bytes, not their names, go into the keys.
