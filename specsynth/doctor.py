@@ -11,15 +11,22 @@ from __future__ import annotations
 
 import importlib
 import os
-import subprocess
 import sys
 
-from .plugins import BACKEND_GROUP, Check, PluginNotFound, available_backends, backend_plugin, dist_version
+from .plugins import (
+    BACKEND_GROUP,
+    PROBE_MARK,
+    Check,
+    PluginNotFound,
+    available_backends,
+    backend_plugin,
+    dist_version,
+    probe_in_child,
+)
 
 PYTHON = (3, 11)  # pyproject's requires-python: the bpy wheel exists for 3.11 only
 CORE_MODULES = ("numpy", "pydantic", "yaml", "trimesh", "pybullet", "pyrender", "pyarrow", "OpenEXR", "PIL",
                 "scipy", "pycocotools", "coacd", "skimage", "ruamel.yaml")
-MARK = "specsynth-doctor: "
 
 # An EGL context the way the annotation engine makes one, and the OpenGL renderer it got.
 _EGL_PROBE = f"""
@@ -31,7 +38,7 @@ r = pyrender.OffscreenRenderer(16, 16)
 scene = pyrender.Scene()
 scene.add(pyrender.PerspectiveCamera(yfov=1.0))
 r.render(scene, flags=pyrender.RenderFlags.DEPTH_ONLY)
-print({MARK!r} + GL.glGetString(GL.GL_RENDERER).decode())
+print({PROBE_MARK!r} + GL.glGetString(GL.GL_RENDERER).decode())
 """
 EGL_FIX = "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 (Mesa's EGL; PYOPENGL_PLATFORM=egl)"
 
@@ -84,16 +91,10 @@ def egl_check(timeout: float = 120.0) -> Check:
     env = dict(os.environ)
     env.setdefault("PYOPENGL_PLATFORM", "egl")
     name = f"OpenGL (PYOPENGL_PLATFORM={env['PYOPENGL_PLATFORM']})"
-    try:
-        r = subprocess.run([sys.executable, "-c", _EGL_PROBE], capture_output=True, text=True, timeout=timeout,
-                           env=env)
-    except subprocess.TimeoutExpired:
-        return Check(name, False, f"no context after {timeout:.0f} s", EGL_FIX)
-    found = [line[len(MARK):] for line in r.stdout.splitlines() if line.startswith(MARK)]
-    if r.returncode != 0 or not found:
-        last = (r.stderr or r.stdout).strip().splitlines()[-1:] or [f"exit status {r.returncode}"]
-        return Check(name, False, f"no headless context: {last[0][:200]}", EGL_FIX)
-    return Check(name, True, f"headless context, renderer {found[-1]}")
+    renderer, why = probe_in_child(_EGL_PROBE, timeout, env)
+    if renderer is None:
+        return Check(name, False, f"no headless context: {why}", EGL_FIX)
+    return Check(name, True, f"headless context, renderer {renderer}")
 
 
 def furniture_check() -> Check:

@@ -51,6 +51,26 @@ class Check:
     required: bool = True
 
 
+PROBE_MARK = "specsynth-doctor: "  # a probe's answer line, told apart from whatever the library prints
+
+
+def probe_in_child(code: str, timeout: float, env: dict | None = None) -> tuple[str | None, str]:
+    """Run ``code`` in a fresh interpreter (what it imports may crash or print on the terminal) and
+    return (its last ``PROBE_MARK`` line without the mark, "") or (None, why it gave none)."""
+    import subprocess
+    import sys
+
+    try:
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        return None, f"no answer after {timeout:.0f} s"
+    found = [line[len(PROBE_MARK):] for line in r.stdout.splitlines() if line.startswith(PROBE_MARK)]
+    if r.returncode != 0 or not found:
+        last = (r.stderr or r.stdout).strip().splitlines()[-1:] or [f"exit status {r.returncode}"]
+        return None, last[0][:200]
+    return found[-1], ""
+
+
 @dataclass(frozen=True)
 class BackendPlugin:
     name: str

@@ -8,12 +8,8 @@ probes ('WARNING CUEW initialization failed' where there is no CUDA) straight to
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
-from specsynth.plugins import Check, dist_version
-
-MARK = "specsynth-doctor: "
+from specsynth.plugins import PROBE_MARK, Check, dist_version, probe_in_child
 
 _PROBE = f"""
 import json
@@ -28,22 +24,17 @@ for kind in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
         continue
     prefs.get_devices()
     out["devices"] += [[kind, d.name] for d in prefs.devices if d.type == kind]
-print({MARK!r} + json.dumps(out))
+print({PROBE_MARK!r} + json.dumps(out))
 """
 
 FIX = "pip install bpy==5.0.1 (Python 3.11 only), or pip install --force-reinstall specsynth-cycles"
 
 
 def checks(timeout: float = 300.0) -> list[Check]:
-    try:
-        r = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return [Check("cycles (bpy)", False, f"importing bpy took over {timeout:.0f} s", FIX)]
-    found = [line[len(MARK):] for line in r.stdout.splitlines() if line.startswith(MARK)]
-    if r.returncode != 0 or not found:
-        last = (r.stderr or r.stdout).strip().splitlines()[-1:] or [f"exit status {r.returncode}"]
-        return [Check("cycles (bpy)", False, f"bpy does not import: {last[0][:200]}", FIX)]
-    info = json.loads(found[-1])
+    answer, why = probe_in_child(_PROBE, timeout)
+    if answer is None:
+        return [Check("cycles (bpy)", False, f"bpy does not import: {why}", FIX)]
+    info = json.loads(answer)
     gpus = [f"{name} ({kind})" for kind, name in info["devices"]]
     return [
         Check("cycles (bpy)", True, f"Blender {info['blender']} (bpy {dist_version('bpy')})"),

@@ -5,30 +5,22 @@ does: a too-old libLLVM kills the process instead of raising)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
-from specsynth.plugins import Check
+from specsynth.plugins import PROBE_MARK, Check, probe_in_child
 
 from .variant import _gpu_plausible, probe
 
-MARK = "specsynth-doctor: "
-_LIST = f"import json, mitsuba as mi; print({MARK!r} + json.dumps([mi.__version__, mi.variants()]))"
+_LIST = f"import json, mitsuba as mi; print({PROBE_MARK!r} + json.dumps([mi.__version__, mi.variants()]))"
 FIX = "pip install 'mitsuba>=3.6,<4', or pip install --force-reinstall specsynth-mitsuba"
 LLVM_FIX = ("apt-get install libllvm19 (Dr.Jit's LLVM back end; without it Mitsuba renders with "
             "scalar_rgb, many times slower)")
 
 
 def checks(timeout: float = 300.0) -> list[Check]:
-    try:
-        r = subprocess.run([sys.executable, "-c", _LIST], capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return [Check("mitsuba", False, f"importing mitsuba took over {timeout:.0f} s", FIX)]
-    found = [line[len(MARK):] for line in r.stdout.splitlines() if line.startswith(MARK)]
-    if r.returncode != 0 or not found:
-        last = (r.stderr or r.stdout).strip().splitlines()[-1:] or [f"exit status {r.returncode}"]
-        return [Check("mitsuba", False, f"mitsuba does not import: {last[0][:200]}", FIX)]
-    version, variants = json.loads(found[-1])
+    answer, why = probe_in_child(_LIST, timeout)
+    if answer is None:
+        return [Check("mitsuba", False, f"mitsuba does not import: {why}", FIX)]
+    version, variants = json.loads(answer)
     rgb = [v for v in variants if v.endswith("_rgb")]
     others = f" (and {len(variants) - len(rgb)} spectral, mono or polarised)" if len(variants) > len(rgb) else ""
     out = [Check("mitsuba", True, f"Mitsuba {version}; variants: {', '.join(rgb)}{others}")]
