@@ -31,6 +31,10 @@ class Capabilities:
     draws_scene: bool = True  # False: draws only the dataset objects (the photo baseline)
     denoise: bool = False  # has a denoiser; False also for renderers without sampling noise
     gpu: bool = False
+    # Monte Carlo noise that falls with samples, so that `quality.control: error` applies: the
+    # backend renders ``quality``'s samples when its options set none, and independent seeds give
+    # independent images of the same view.
+    sampling_noise: bool = False
     depth_of_field: bool = False  # renders CameraIR.aperture / focus_distance (a thin lens)
     motion_blur: bool = False  # renders CameraIR.motion (the camera moving during the exposure)
     material_channels: frozenset[str] = frozenset({"base_color"})
@@ -101,10 +105,24 @@ class BackendPlugin:
         A calibration's few samples reach the paper's error only through its denoiser: a spec
         that turns denoising off gets the paper preset's own samples instead of a noisy image."""
         cal = self.calibrated.get(quality.paper_level) if quality.calibrated else None
+        if cal and getattr(quality, "control", "samples") == "error":  # samples: per render (error_target)
+            cal = {k: v for k, v in cal.items() if k != "samples"}
         if not cal or (cal.get("denoise") and "denoise" in options.model_fields_set and not options.denoise):
             return options
         update = {k: v for k, v in cal.items() if k not in options.model_fields_set}
         return options.model_copy(update=update) if update else options
+
+    def error_target(self, options: Any, quality: Any):
+        """``quality.control: error``: the paper preset's samples (whose error is the target), the
+        samples per render (half the level's calibrated samples: the first pair costs what one
+        calibrated render does) and the image's budget."""
+        from .model.error import ErrorTarget
+
+        paper = quality.resolved().samples
+        cal = self.calibrated.get(quality.paper_level, {}) if quality.calibrated else {}
+        start = options.samples or max(1, int(cal.get("samples", 2)) // 2)
+        budget = quality.max_samples or max(paper, 2 * start)
+        return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=max(budget, 2 * start))
 
     def load_class(self) -> type:
         mod, _, attr = self.backend.partition(":")

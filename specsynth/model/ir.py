@@ -206,3 +206,6 @@ class RenderResult:
     rgb: np.ndarray  # HxWx3 uint8, sRGB-encoded
     linear: np.ndarray | None = None  # HxWx3 float32 linear radiance (PBR backends)
     stats: dict = field(default_factory=dict)  # e.g. samples, variant, seconds
+    # HxWx3 float32 linear radiance before the denoiser, when the backend denoised ``linear``: what
+    # the error estimates of specsynth.model.error need from a denoising backend.
+    noisy: np.ndarray | None = None

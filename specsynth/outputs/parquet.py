@@ -89,6 +89,11 @@ TIMINGS_SCHEMA = pa.schema(
         ("im_id", pa.int32()),
         ("index", pa.int64()),
         ("render_seconds", pa.float64()),
+        # quality.control: error (null otherwise): samples per pixel spent, the image's estimated
+        # relative MSE and its target, the paper preset's estimated relative MSE at this image
+        ("samples", pa.int64()),
+        ("error_estimate", pa.float64()),
+        ("error_target", pa.float64()),
     ]
 )
 
@@ -116,6 +121,14 @@ def table_bytes(table: pa.Table) -> bytes:
 def _table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:
     cols = {f.name: pa.array([r[f.name] for r in rows], type=f.type) for f in schema}
     return pa.Table.from_pydict(cols, schema=schema)
+
+
+def error_columns(stats: dict) -> dict[str, Any]:
+    """The timings table's error-target columns of one image (nulls unless it had a target)."""
+    targeted = "error_target" in stats
+    return {"samples": int(stats["samples"]) if targeted else None,
+            "error_estimate": float(stats["error_estimate"]) if targeted else None,
+            "error_target": float(stats["error_target"]) if targeted else None}
 
 
 def write_parquet(
@@ -156,7 +169,8 @@ def write_parquet(
                 **paths, "distortion": list(rec.distortion) if rec.distortion else None,
             }
         )
-        timing_rows.append({"chunk": chunk, "im_id": im_id, "index": rec.index, "render_seconds": float(rec.render_seconds)})
+        timing_rows.append({"chunk": chunk, "im_id": im_id, "index": rec.index, "render_seconds": float(rec.render_seconds),
+                            **error_columns(rec.stats)})
         img_rles = rles[rec.index] if rles is not None and rec.index in rles else visible_rles(rec, store)
         for gt_id, (g, rle) in enumerate(zip(rec.instances, img_rles)):
             inst_rows.append(

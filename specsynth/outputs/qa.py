@@ -225,5 +225,35 @@ def dataset_stats(out: Path, dest: Path) -> dict:
     fig.tight_layout()
     fig.savefig(dest / "stats.png", dpi=80)
     plt.close(fig)
+    table.update(error_stats(out, dest))
     (dest / "stats.json").write_text(json.dumps(table, indent=2, sort_keys=True) + "\n")
     return table
+
+
+def error_stats(out: Path, dest: Path) -> dict:
+    """Images rendered to an error target (``quality.control: error``): samples per image and
+    estimated error against target, plotted into ``quality.png``; {} for any other build."""
+    path = out / "parquet" / "timings.parquet"
+    timings = read_parquet(path) if path.is_file() else None
+    if timings is None or "error_target" not in timings or timings["error_target"].isna().all():
+        return {}
+    import matplotlib.pyplot as plt
+
+    t = timings.dropna(subset=["error_target"])
+    ratio = (t["error_estimate"] / t["error_target"]).to_numpy()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.5))
+    a.hist(t["samples"], bins=30, color="tab:blue")
+    a.set_title("samples per pixel per image")
+    b.loglog(t["error_target"], t["error_estimate"], ".", color="tab:orange")
+    lo, hi = float(t["error_target"].min()), float(t["error_target"].max())
+    b.plot([lo, hi], [lo, hi], "k-", lw=0.8, label="at the target")
+    b.plot([lo, hi], [1.1 * lo, 1.1 * hi], "k:", lw=0.8, label="10 % above")
+    b.set_xlabel("target: the paper preset's estimated relMSE")
+    b.set_ylabel("the image's estimated relMSE")
+    b.legend()
+    fig.tight_layout()
+    fig.savefig(dest / "quality.png", dpi=80)
+    plt.close(fig)
+    return {"error_control": {"images": int(len(t)), "samples_median": float(np.median(t["samples"])),
+                              "error_ratio_median": round(float(np.median(ratio)), 4),
+                              "within_10_percent": round(float(np.mean(ratio <= 1.1)), 4)}}

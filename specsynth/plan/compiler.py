@@ -108,6 +108,9 @@ def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
             problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
                                           f"plugin does not declare it); remove {name} or use one that does "
                                           "(`specsynth backends`)"))
+    if spec.quality.control == "error" and not caps.sampling_noise:
+        problems.append(loaded.locate("quality.control", f"backend {spec.backend.name!r} has no sampling noise to "
+                                      "control (its plugin does not declare sampling_noise); use control: samples"))
     return problems
 
 

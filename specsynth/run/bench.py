@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.colour import linear_to_srgb8
+from ..model.error import rel_mse, render_to_target, split_rel_mse
+from ..model.ir import RenderResult
 from ..model.records import ArrangementRecord, ViewRecord
 from ..plan.compiler import JobGraph
 from ..plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_backend_plugins
@@ -44,6 +47,10 @@ class Row:
     ssim: float
     samples: int
     phases: dict = None  # mean seconds per backend phase (RenderResult.stats["phases"])
+    # per view: relMSE against the reference less the reference's own variance, and under an error
+    # target the render's estimated error, the target (the paper preset's estimated error), samples
+    views: list = None
+    load: float = 0.0  # median seconds of a scene load
 
 
 LEVELS = ("low", "medium", "high")
@@ -61,6 +68,8 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
             out.append(Setting(plugin.name, f"{level}+calibrated", level, dict(plugin.calibrated[level])))
         for suffix, options in plugin.bench_variants:
             out.append(Setting(plugin.name, f"{level}+{suffix}", level, dict(options)))
+        if plugin.capabilities.sampling_noise:  # quality.control: error
+            out.append(Setting(plugin.name, f"{level}+targeted", level, {"__control__": "error"}))
         if ladder and plugin.capabilities.denoise:
             own = PAPER_PRESETS[level].samples
             n = 1
@@ -82,10 +91,6 @@ def pick_settings(settings: list[Setting], only: tuple[str, ...]) -> list[Settin
         raise ValueError(f"--only: no setting {', '.join(map(repr, unknown))} for backend "
                          f"{settings[0].backend!r}; it has {', '.join(labels)}")
     return [st for st in settings if st.reference or st.label in only]
-
-
-def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
-    return float(np.mean((x - ref) ** 2 / (ref**2 + 1e-2)))
 
 
 def psnr8(a: np.ndarray, b: np.ndarray) -> float:
@@ -201,7 +206,6 @@ def scaled_intrinsics(intr, scale: float):
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
               ladder: bool = False, only: tuple[str, ...] = ()) -> list[Row]:
-    from ..outputs.images import write_png
     from ..plan.inputs import BuildInputs
     from .worker import BuildContext, Worker
 
@@ -232,67 +236,107 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
         worker = Worker(BuildContext(inputs=BuildInputs.of(spec.model_copy(update={"intrinsics": small})),
                                      spec_dir=graph.spec_path.parent, out=out))
-        refs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        refs: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
         settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
         settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
         for st in settings:
-            opts = dict(base_opts)
-            opts.update({k: v for k, v in st.options.items() if not k.startswith("__")})
-            preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
-            if st.reference:
-                f = st.options["__factor__"]  # every ray count: backends take samples from their max
-                preset = QualityPreset(**{**preset.model_dump(), "aa": preset.aa * f,
-                                          "diffuse_rays": preset.diffuse_rays * f, "specular_rays": preset.specular_rays * f})
-            backend = cls(plugin.options.model_validate(opts), threads=0)
-            times, errs, loads, phase_sums = [], [], [], {}
-            samples = 0
-            for i, (arec, vrec, seed) in enumerate(picked):
-                scene = worker.render_scene(arec)
-                t0 = time.perf_counter()
-                backend.load(scene)
-                loads.append(time.perf_counter() - t0)
-                cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
-                ts = []
-                if i == 0 and not st.reference:
-                    # Untimed: the first render of a setting compiles kernels (Dr.Jit, per sampler and
-                    # spp) or syncs the scene (Cycles); a dataset renders thousands after it.
-                    backend.render(cam, preset, seed, clamp=spec.quality.clamp)
-                for r in range(repeats if not st.reference else 1):
-                    t0 = time.perf_counter()
-                    res = backend.render(cam, preset, seed + (7919 if st.reference else 0), clamp=spec.quality.clamp)
-                    ts.append(time.perf_counter() - t0)
-                times.append(statistics.median(ts))
-                samples = int(res.stats.get("samples", res.stats.get("spp", 0)))
-                for k, v in (res.stats.get("phases") or {}).items():
-                    phase_sums[k] = phase_sums.get(k, 0.0) + v / len(picked)
-                lin = res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255
-                if st.reference:
-                    refs[i] = (lin, res.rgb)
-                    write_png(out / "bench" / f"{name}_ref_{i}.png", res.rgb)
-                    continue
-                ref_lin, ref_rgb = refs[i]
-                errs.append((rel_mse(lin, ref_lin), psnr8(res.rgb, ref_rgb), ssim8(res.rgb, ref_rgb)))
-                if i == 0:
-                    write_png(out / "bench" / f"{name}_{st.label}_{i}.png", res.rgb)
-            backend.close()
-            phases = {k: round(v, 4) for k, v in phase_sums.items()}
-            if st.reference:
-                rows.append(Row(name, st.label, st.level, float(np.mean(times)), 0.0, float("inf"), 1.0, samples, phases))
-            else:
-                e = np.mean(np.asarray(errs), axis=0)
-                rows.append(Row(name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]),
-                                samples, phases))
+            rows.append(bench_setting(plugin, cls, st, base_opts, spec, picked, worker, refs, repeats, out))
             if console:
                 r = rows[-1]
                 console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
         level = spec.quality.paper_level
-        savings += camera_savings(name, rows, level, cams, statistics.median(loads), spec.cameras.per_arrangement)
+        savings += camera_savings(name, rows, level, cams, statistics.median(r.load for r in rows if r.backend == name), spec.cameras.per_arrangement)
         preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
         for label, option in plugin.bench_toggles:
             savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, worker, preset, repeats))
         worker.close()
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
     return rows, savings
+
+
+REF_SEEDS = (7919, 7920)  # the reference's two halves: seeds no setting renders with
+
+
+def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec, picked, worker, refs: dict,
+                  repeats: int, out: Path) -> Row:
+    """Every picked view rendered with one setting, timed; its error against the reference (which
+    the reference setting, benched first, puts into ``refs``: its mean and its own variance)."""
+    from ..outputs.images import write_png
+
+    opts = {**base_opts, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
+    quality = spec.quality.model_copy(update={"level": f"paper_{st.level}"})
+    preset = quality.resolved()
+    if st.reference:
+        f = st.options["__factor__"]  # every ray count (backends take samples from their max), in two halves
+        preset = QualityPreset(**{**preset.model_dump(), "aa": max(1, preset.aa * f // 2),
+                                  "diffuse_rays": max(1, preset.diffuse_rays * f // 2),
+                                  "specular_rays": max(1, preset.specular_rays * f // 2)})
+    options = plugin.options.model_validate(opts)
+    target = None
+    if st.options.get("__control__") == "error":
+        quality = spec.quality.model_copy(update={"level": st.level, "control": "error"})
+        options = plugin.options_for(options, quality)
+        target = plugin.error_target(options, quality)
+    backend = cls(options, threads=0)
+    draw = _drawer(backend, preset, target, spec.quality.clamp)
+    times, errs, loads, phase_sums, views = [], [], [], {}, []
+    samples = 0
+    for i, (arec, vrec, seed) in enumerate(picked):
+        t0 = time.perf_counter()
+        backend.load(worker.render_scene(arec))
+        loads.append(time.perf_counter() - t0)
+        cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
+        if st.reference:
+            a, b = (backend.render(cam, preset, seed + k, clamp=spec.quality.clamp) for k in REF_SEEDS)
+            lin = (a.linear + b.linear) / 2
+            refs[i] = (lin, linear_to_srgb8(lin), split_rel_mse(a.linear, b.linear))
+            write_png(out / "bench" / f"{plugin.name}_ref_{i}.png", refs[i][1])
+            times.append(a.stats.get("seconds", 0.0) + b.stats.get("seconds", 0.0))
+            continue
+        if i == 0:
+            # Untimed: the first render of a setting compiles kernels (Dr.Jit, per sampler and
+            # spp) or syncs the scene (Cycles); a dataset renders thousands after it.
+            draw(cam, seed)
+        ts = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            res = draw(cam, seed)
+            ts.append(time.perf_counter() - t0)
+        times.append(statistics.median(ts))
+        samples = int(res.stats.get("samples", res.stats.get("spp", 0)))
+        for k, v in (res.stats.get("phases") or {}).items():
+            phase_sums[k] = phase_sums.get(k, 0.0) + v / len(picked)
+        lin = res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255
+        ref_lin, ref_rgb, ref_var = refs[i]
+        errs.append((rel_mse(lin, ref_lin) - ref_var, psnr8(res.rgb, ref_rgb), ssim8(res.rgb, ref_rgb)))
+        views.append({"rel_mse": errs[-1][0], "samples": samples,
+                      **{k: res.stats[k] for k in ("error_estimate", "error_target", "error_spread", "error_residual")
+                         if k in res.stats}})
+        if i == 0:
+            write_png(out / "bench" / f"{plugin.name}_{st.label}_{i}.png", res.rgb)
+    backend.close()
+    phases = {k: round(v, 4) for k, v in phase_sums.items()}
+    if st.reference:
+        return Row(plugin.name, st.label, st.level, float(np.mean(times)), 0.0, float("inf"), 1.0, samples, phases,
+                   load=statistics.median(loads))
+    e = np.mean(np.asarray(errs), axis=0)
+    return Row(plugin.name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]),
+               samples, phases, views, statistics.median(loads))
+
+
+def _drawer(backend, preset: QualityPreset, target, clamp):
+    """(camera, seed) -> RenderResult: one render of ``preset``, or renders up to an error target."""
+    if target is None:
+        return lambda cam, seed: backend.render(cam, preset, seed, clamp=clamp)
+
+    def draw(cam, seed):
+        def one(n: int, i: int):
+            q = preset.model_copy(update={"aa": n, "diffuse_rays": n, "specular_rays": n})
+            return backend.render(cam, q, seed + 104729 * i, clamp=clamp)
+
+        done = render_to_target(one, target, linear_to_srgb8)
+        return RenderResult(done.result.rgb, done.result.linear, {**done.result.stats, **done.stats()})
+    return draw
 
 
 def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:

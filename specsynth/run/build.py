@@ -20,6 +20,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import numpy as np
+
 from .. import notices
 from ..files import UnsafeOutput, refuse_links_out  # noqa: F401  (UnsafeOutput: the CLI's)
 from ..model.records import ImageRecord
@@ -99,6 +101,9 @@ class BuildSummary:
     # True when this build failed or rendered nothing and the folder's last complete dataset was
     # left as it was; the failures are then in KEPT_FAILURES, not the dataset's failures.json.
     kept_previous: bool = False
+    # quality.control: error: samples per image and estimated error / target over the images
+    # (medians, 95th percentiles) and the share whose estimate is within 10 % of the target or below.
+    error_control: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         d = self.__dict__.copy()
@@ -553,6 +558,21 @@ def _account_savings(summary: BuildSummary, images, cached_render: set[str]) -> 
         "cache": round(cache, 2),
     }
     summary.glossy_bounces_skipped = sum(1 for im, _ in images if im.stats.get("glossy_skipped"))
+    summary.error_control = error_control_summary([im.stats for im, _ in images])
+
+
+def error_control_summary(stats: list[dict]) -> dict[str, Any]:
+    """Samples and estimated error against target over the images rendered to an error target."""
+    got = [s for s in stats if s.get("error_target")]
+    if not got:
+        return {}
+    samples = np.array([s["samples"] for s in got], float)
+    ratio = np.array([s["error_estimate"] / s["error_target"] for s in got])
+    return {"images": len(got),
+            "samples": {"median": float(np.median(samples)), "p95": float(np.percentile(samples, 95)),
+                        "max": int(samples.max())},
+            "error_ratio": {"median": round(float(np.median(ratio)), 4), "p95": round(float(np.percentile(ratio, 95)), 4)},
+            "within_10_percent": round(float(np.mean(ratio <= 1.1)), 4)}
 
 
 def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:

@@ -13,11 +13,13 @@ import numpy as np
 from ..assets.resolve import ObjectAsset
 from ..model import lens
 from ..model.colour import check_finite, linear_to_srgb8
+from ..model.error import ErrorTarget, render_to_target
 from ..model.ir import RenderResult, RenderScene
 from ..model.records import ArrangementRecord, ImageRecord, ViewRecord
 from ..plan import seeds
 from ..plan.compiler import Job
 from ..plan.inputs import RenderedFiles, RenderInputs
+from ..plugins import backend_plugin
 from ..views.sensor import jpeg_quality, sensor_depth, sensor_rgb
 from .worker import Worker
 
@@ -33,7 +35,7 @@ def run_renders(w: Worker, inp: RenderInputs, arrange_key: str, pairs: list[tupl
     occluders = "scene" if w.draws_scene else "objects"
     preset = inp.quality.resolved()
     ctx = _Render(inp, arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds,
-                  w.assets_by_id(arr))
+                  w.assets_by_id(arr), error_target(inp))
     out = []
     for view_job, job in pairs:
         if w.store.has("render", job.key):  # finished before a retry
@@ -67,7 +69,7 @@ def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Ren
     if inp.motion_blur is not None:
         cam_r = replace(cam_r, motion=camera_motion(inp.motion_blur, seeds.job_seed(inp.arrange.seed, f"{job.id}/motion")))
     t1 = time.perf_counter()
-    res = ctx.backend.render(cam_r, ctx.preset, job.seed, clamp=inp.quality.clamp)
+    res = draw(ctx, cam_r, job.seed)
     seconds = time.perf_counter() - t1
     if res.linear is not None:
         check_finite(res.linear, f"{inp.backend.name} render of {job.id}")
@@ -176,6 +178,29 @@ def focused(inp: RenderInputs, cam, scene: RenderScene, focus_inst: int, job: Jo
     return replace(cam, aperture=aperture_m, focus_distance=max(z + jitter, 2.0 * cam.near))
 
 
+def error_target(inp: RenderInputs) -> ErrorTarget | None:
+    """The per-image error target of ``quality.control: error``, else None (the level's samples)."""
+    if inp.quality.control != "error":
+        return None
+    plugin = backend_plugin(inp.backend.name)
+    return plugin.error_target(plugin.options_for(inp.backend, inp.quality), inp.quality)
+
+
+def draw(ctx: _Render, cam, seed: int) -> RenderResult:
+    """One image from the backend: one render of the level's samples, or, under an error target,
+    pairs of renders with independent seeds until the image's estimated error reaches the target."""
+    clamp = ctx.inp.quality.clamp
+    if ctx.target is None:
+        return ctx.backend.render(cam, ctx.preset, seed, clamp=clamp)
+
+    def one(samples: int, i: int) -> RenderResult:
+        preset = ctx.preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
+        return ctx.backend.render(cam, preset, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp)
+
+    done = render_to_target(one, ctx.target, linear_to_srgb8)
+    return replace(done.result, stats={**done.result.stats, **done.stats()})
+
+
 @dataclass(frozen=True)
 class _Render:
     """What every image of one render call shares."""
@@ -191,6 +216,7 @@ class _Render:
     preset: Any
     load_seconds: float
     by_id: dict  # obj_id -> ObjectAsset of every annotated object
+    target: ErrorTarget | None  # quality.control: error
 
 
 def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:

@@ -511,6 +511,13 @@ class Quality(Strict):
         default_factory=dict, description="Overrides of the paper's preset numbers, per level."
     )
     clamp: float | None = Field(None, gt=0, description="Clamp indirect sample radiance (fireflies).")
+    control: Literal["samples", "error"] = Field(
+        "samples", description="samples: every image gets the level's calibrated samples (docs/quality.md). "
+        "error: every image is rendered as pairs of independent renders until its estimated error reaches the "
+        "paper preset's at that image (docs/quality.md#error-targets); each image records its samples and error.")
+    max_samples: int | None = Field(
+        None, ge=2, le=65536, description="control: error: the most samples per pixel one image may take "
+        "(all its renders together); default the paper preset's samples.")
 
     @property
     def paper_level(self) -> str:

@@ -14,7 +14,7 @@ PLUGIN = BackendPlugin(
     options=CyclesOptions,
     backend="specsynth_cycles.backend:CyclesBackend",
     capabilities=Capabilities(
-        draws_scene=True, denoise=True, gpu=False, depth_of_field=True, motion_blur=True,
+        draws_scene=True, denoise=True, gpu=False, sampling_noise=True, depth_of_field=True, motion_blur=True,
         material_channels=frozenset({"base_color", "roughness", "metallic", "normal", "emission", "opacity"}),
         quality="samples = max(AA, diffuse rays, specular rays); bounce limits from the preset's depths",
     ),

@@ -15,6 +15,7 @@ import tempfile
 import threading
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -60,18 +61,24 @@ def cycles_phases(events: list[tuple[float, str]], start: float, end: float, den
 _KEEP_PREFIX = "__specsynth"
 
 
-def _read_exr_rgb(path: Path) -> np.ndarray:
+def _read_exr_rgb(path: Path) -> dict[str, np.ndarray]:
+    """The EXR's colour passes as HxWx3 arrays: {"Combined": ...} and, in a multilayer file written
+    while denoising, {"Noisy Image": ...} (the render before the denoiser) as well."""
     import OpenEXR
 
+    out = {}
     with OpenEXR.File(str(path)) as f:
-        ch = f.channels()
-        if "RGB" in ch:
-            rgb = np.asarray(ch["RGB"].pixels, dtype=np.float32)
-        elif "RGBA" in ch:
-            rgb = np.asarray(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
-        else:
-            rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in ("R", "G", "B")], axis=-1)
-    return np.ascontiguousarray(rgb[..., :3])
+        for part in f.parts:
+            ch = part.channels
+            if "RGB" in ch or "RGBA" in ch:
+                out["Combined"] = np.asarray(ch["RGB" if "RGB" in ch else "RGBA"].pixels, dtype=np.float32)
+            elif all(c in ch for c in "RGB"):
+                out["Combined"] = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+            for name, c in ch.items():  # multilayer: "ViewLayer.<pass>", RGBA in one channel entry
+                layer = name.split(".", 1)[-1]
+                if layer in ("Combined", "Noisy Image"):
+                    out[layer] = np.asarray(c.pixels, dtype=np.float32)
+    return {k: np.ascontiguousarray(v[..., :3]) for k, v in out.items()}
 
 
 @contextlib.contextmanager
@@ -168,6 +175,7 @@ class CyclesBackend:
         # it) whenever a setting or the scene changes, and keeps the fresh full sync for the next render.
         r.use_persistent_data = False
         self._last_settings: tuple | None = None  # what the kept sync was made with; None: nothing kept
+        self._last_draw: tuple | None = None  # (samples, seed) of the last render
         r.threads_mode = "FIXED"
         r.threads = self.threads
         r.resolution_percentage = 100
@@ -340,13 +348,31 @@ class CyclesBackend:
         cy.sample_clamp_indirect = ps.clamp_indirect
         cy.pixel_filter_type = "BOX"
         cy.filter_width = 1.0
-        r = self._bpy.context.scene.render
+        sc = self._bpy.context.scene
+        r = sc.render
         r.threads = self.threads
-        key = (ps, self.threads, r.resolution_x, r.resolution_y)
-        if key != self._last_settings:
-            r.use_persistent_data = False
+        # While denoising, the render before the denoiser is written too (RenderResult.noisy).
+        self._bpy.context.view_layer.cycles.denoising_store_passes = ps.denoise
+        im = r.image_settings
+        if im.media_type != ("MULTI_LAYER_IMAGE" if ps.denoise else "IMAGE"):  # a new media type resets the format
+            im.media_type = "MULTI_LAYER_IMAGE" if ps.denoise else "IMAGE"
+            im.file_format = "OPEN_EXR_MULTILAYER" if ps.denoise else "OPEN_EXR"
+            im.color_mode, im.color_depth, im.exr_codec = "RGB", "32", "NONE"
+            # One part for all passes: Blender 5.0's multipart writer fails on non-square pixels
+            # ("Conflicting attributes ... pixelAspectRatio"), the interleaved one does not.
+            im.use_exr_interleave = True
         r.use_persistent_data = self.options.persistent
-        self._last_settings = key
+        key = (replace(ps, samples=0), self.threads, r.resolution_x, r.resolution_y)
+        if key != self._last_settings:
+            r.use_persistent_data = False  # dropped: a full sync of the changed settings
+            r.use_persistent_data = self.options.persistent
+        elif (ps.samples, seed) != self._last_draw:
+            # Persistent data keeps the integrator's last seed and sample count unless the scene
+            # is tagged for an update (measured on bare bpy: untagged, a new seed or sample count
+            # rendered the same pixels); tagged, the render equals a fully synced one bit for bit
+            # and the BVH is kept: a change of samples alone no longer costs a full sync.
+            sc.update_tag()
+        self._last_settings, self._last_draw = key, (ps.samples, seed)
 
     def _render_exr(self, stem: str) -> np.ndarray:
         bpy = self._bpy
@@ -359,12 +385,12 @@ class CyclesBackend:
             bpy.ops.render.render(write_still=True)
         t1 = time.perf_counter()
         try:
-            rgb = _read_exr_rgb(path)
+            passes = _read_exr_rgb(path)
         finally:
             path.unlink(missing_ok=True)
         denoise = bool(sc.cycles.use_denoising)
         self.last_phases = {**cycles_phases(self._events, t0, t1, denoise), "readback": time.perf_counter() - t1}
-        return rgb
+        return passes
 
     def _require_scene(self) -> RenderScene:
         if self._scene_ir is None:
@@ -382,7 +408,8 @@ class CyclesBackend:
         self._set_camera(camera)
         self._apply(ps, seed)
         t_setup = time.perf_counter()
-        linear = self._render_exr("beauty")
+        passes = self._render_exr("beauty")
+        linear, noisy = passes["Combined"], passes.get("Noisy Image")
         seconds = time.perf_counter() - t0
         check_finite(linear, "cycles render")
         stats = ps.stats()
@@ -390,7 +417,7 @@ class CyclesBackend:
         t_tone = time.perf_counter()
         rgb = linear_to_srgb8(linear)
         stats["phases"] = {"setup": t_setup - t0, **self.last_phases, "tonemap": time.perf_counter() - t_tone}
-        return RenderResult(rgb=rgb, linear=linear, stats=stats)
+        return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy)
 
     def render_index_masks(self, camera: CameraIR) -> np.ndarray:
         """HxW int32 instance map from Cycles itself: -1 background/scene geometry, else MeshInstance.inst.
@@ -424,7 +451,7 @@ class CyclesBackend:
             sc.world = self._mask_world
             for ob in hidden:
                 ob.hide_render = True
-            ids = self._render_exr("mask")[..., 0]
+            ids = self._render_exr("mask")["Combined"][..., 0]
         finally:
             vl.material_override = None
             sc.world = world

@@ -14,7 +14,7 @@ PLUGIN = BackendPlugin(
     options=MitsubaOptions,
     backend="specsynth_mitsuba.backend:MitsubaBackend",
     capabilities=Capabilities(
-        draws_scene=True, denoise=True, gpu=True,  # cuda_ad_rgb where a GPU and its driver exist
+        draws_scene=True, denoise=True, sampling_noise=True, gpu=True,  # cuda_ad_rgb where a GPU and its driver exist
         depth_of_field=True, motion_blur=True,  # the exact-K sensor's thin lens and motion (JIT variants)
         material_channels=frozenset({"base_color", "roughness", "metallic", "normal", "emission", "opacity"}),
         quality="path tracer, samples = max(AA, diffuse rays, specular rays); max_depth from the preset",

@@ -146,8 +146,9 @@ class MitsubaBackend:
         check_finite(linear, f"mitsuba render ({self.variant})")
         linear = np.ascontiguousarray(np.maximum(linear, 0.0))
         t_read = time.perf_counter()
-        denoise_seconds = guide_seconds = None
+        denoise_seconds = guide_seconds = noisy = None
         if self.options.denoise:
+            noisy = linear
             guides = self._guides(sensor, seed_arg, min(st.spp, GUIDE_SPP))
             t1 = time.perf_counter()
             guide_seconds = t1 - t_read
@@ -178,7 +179,7 @@ class MitsubaBackend:
         stats["phases"] = {"setup": t0 - t_setup, "trace": t_trace - t0, "readback": t_read - t_trace,
                            "guides": guide_seconds or 0.0, "denoise": denoise_seconds or 0.0,
                            "tonemap": time.perf_counter() - t_tone}
-        return RenderResult(rgb=rgb, linear=linear, stats=stats)
+        return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy)
 
     def close(self) -> None:
         self._scene = None

@@ -1,0 +1,206 @@
+"""Image error without a reference: estimated from independent renders of the same view.
+
+The measure is ``specsynth bench``'s relative MSE on linear radiance, ``mean((x - ref)² / (ref² + ε))``
+over pixels and channels. Two renders ``a`` and ``b`` of one view with independent seeds are
+unbiased estimates of the same image with the same per-pixel variance σ²; ``E[(a - b)²] = 2σ²``.
+Hence, with the converged image replaced by the best estimate at hand as the normaliser:
+
+- the error of their mean ``(a + b) / 2`` is ``mean((a - b)² / 4 / (norm² + ε))`` (its variance σ²/2);
+- the error of one render of ``N`` samples, from two raw renders of ``n`` samples each, is
+  ``mean((a - b)² / 2 · n / N / (norm² + ε))``: Monte Carlo variance falls as 1 / samples.
+
+Denoised renders are not unbiased: the first estimate then measures the denoised images' variance
+and not the detail the denoiser smooths away (docs/quality.md says by how much, measured).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .ir import RenderResult
+
+EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not dominate it
+
+
+def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
+    """Relative MSE of ``x`` against a reference image (linear radiance)."""
+    x, ref = np.asarray(x, np.float64), np.asarray(ref, np.float64)
+    return float(np.mean((x - ref) ** 2 / (ref**2 + EPS)))
+
+
+def split_rel_mse(a: np.ndarray, b: np.ndarray, norm: np.ndarray | None = None) -> float:
+    """Estimated relative MSE of ``(a + b) / 2``, from two independent renders of one view."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    norm = (a + b) / 2 if norm is None else np.asarray(norm, np.float64)
+    return float(np.mean((a - b) ** 2 / 4 / (norm**2 + EPS)))
+
+
+def extrapolated_rel_mse(a: np.ndarray, b: np.ndarray, samples: int, to_samples: int,
+                         norm: np.ndarray | None = None) -> float:
+    """Estimated relative MSE of one render of ``to_samples`` samples per pixel, from two raw
+    (not denoised) independent renders of ``samples`` each: the paper preset's error at this view."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    norm = (a + b) / 2 if norm is None else np.asarray(norm, np.float64)
+    return float(np.mean((a - b) ** 2 / 2 / (norm**2 + EPS))) * samples / to_samples
+
+
+def denoised_rel_mse_map(d_a: np.ndarray, d_b: np.ndarray, a: np.ndarray, b: np.ndarray,
+                         norm: np.ndarray | None = None) -> np.ndarray:
+    """Per pixel, an unbiased estimate of the relative squared error of ``(d_a + d_b) / 2``, where
+    ``d_a``, ``d_b`` are two independent raw renders ``a``, ``b`` each denoised on its own: the
+    denoiser's bias included, and nothing assumed about the denoiser. ``d_a`` is independent of
+    ``b``, so ``E[(d_a - b)²]`` is d_a's error plus b's variance ``E[(a - b)²] / 2``; the mean of the
+    two halves has half their variance ``E[(d_a - d_b)²] / 2`` less error than one half."""
+    d_a, d_b, a, b = (np.asarray(x, np.float64) for x in (d_a, d_b, a, b))
+    norm = (d_a + d_b) / 2 if norm is None else np.asarray(norm, np.float64)
+    half = ((d_a - b) ** 2 + (d_b - a) ** 2) / 2 - (a - b) ** 2 / 2
+    return (half - (d_a - d_b) ** 2 / 4) / (norm**2 + EPS)
+
+
+def mean_and_error(per_pixel: np.ndarray, blocks: int = 8) -> tuple[float, float]:
+    """The image mean of a per-pixel estimate and its standard error, from the spread of the means
+    of ``blocks`` x ``blocks`` tiles (a denoised image's pixels are correlated; its tiles hardly)."""
+    h, w = per_pixel.shape[:2]
+    rows, cols = np.array_split(np.arange(h), blocks), np.array_split(np.arange(w), blocks)
+    tiles = np.array([per_pixel[r[0]:r[-1] + 1, c[0]:c[-1] + 1].mean() for r in rows for c in cols if len(r) and len(c)])
+    return float(per_pixel.mean()), float(tiles.std(ddof=1) / np.sqrt(len(tiles)))
+
+
+def denoised_rel_mse(d_a, d_b, a, b, norm=None) -> float:
+    """The image's estimated relative MSE (see ``denoised_rel_mse_map``)."""
+    return float(denoised_rel_mse_map(d_a, d_b, a, b, norm).mean())
+
+
+@dataclass(frozen=True)
+class ErrorTarget:
+    """One image rendered until its estimated error reaches the paper preset's."""
+
+    paper_samples: int  # samples per pixel of the paper preset whose error is the target
+    start_samples: int  # samples per render of the first pair (and of every later one)
+    max_samples: int  # the image's total budget: never more than this many samples per pixel
+    # An image stops when its estimate plus this many standard errors of it is at the target:
+    # 1.645, one-sided 95 %: the error of about 19 in 20 images is at most the target.
+    confidence: float = 1.645
+
+    def __post_init__(self) -> None:
+        if min(self.paper_samples, self.start_samples) < 1 or self.max_samples < 2 * self.start_samples:
+            raise ValueError(f"an error target needs at least 1 sample per render and a budget of two: {self}")
+
+
+@dataclass
+class TargetedResult:
+    result: RenderResult  # the image: every render's raw samples together, denoised
+    samples: int  # samples per pixel spent, over all renders
+    renders: int
+    error: float  # estimated relative MSE of the result
+    target: float  # estimated relative MSE of the paper preset at this view
+    history: list[tuple[int, float]] = field(default_factory=list)  # (samples so far, upper bound) per step
+    error_se: float = 0.0  # the estimate's standard error
+
+    def stats(self) -> dict:
+        return {"samples": self.samples, "renders": self.renders, "error_estimate": self.error,
+                "error_se": self.error_se,
+                "error_target": self.target, "error_ratio": self.error / self.target if self.target > 0 else 0.0}
+
+
+MAX_GROWTH = 8  # a step renders at most this many times the samples spent so far
+
+
+def samples_needed(history: list[tuple[int, float]], target: float) -> int:
+    """Total samples at which the estimate reaches ``target``: error ∝ samples^-α, with α from the
+    last two steps (a denoiser's error falls slower than 1 / samples), 1 on the first."""
+    (n1, e1) = history[-1]
+    alpha = 1.0
+    if len(history) > 1:
+        (n0, e0) = history[-2]
+        if e0 > e1 > 0 and n1 > n0:
+            alpha = min(1.0, max(0.25, math.log(e0 / e1) / math.log(n1 / n0)))
+    if e1 <= target or target <= 0:
+        return n1
+    return min(MAX_GROWTH * n1, math.ceil(n1 * (e1 / target) ** (1 / alpha)))
+
+
+class _Raw:
+    """Raw renders accumulated into two independent sample-weighted halves (even and odd renders)."""
+
+    def __init__(self) -> None:
+        self.sums, self.counts = [0.0, 0.0], [0, 0]
+
+    def add(self, g: int, linear: np.ndarray, samples: int) -> None:
+        self.sums[g] = self.sums[g] + np.asarray(linear, np.float64) * samples
+        self.counts[g] += samples
+
+    def estimate(self, paper_samples: int) -> tuple[np.ndarray, float, float, float]:
+        """(the image, its estimated error, the estimate's standard error, the paper's error)."""
+        a, b = self.sums[0] / self.counts[0], self.sums[1] / self.counts[1]
+        out = (a + b) / 2
+        error, se = mean_and_error(((a - b) ** 2 / 4 / (out**2 + EPS)).mean(axis=-1))
+        return out, error, se, extrapolated_rel_mse(a, b, min(self.counts), paper_samples, norm=out)
+
+
+def _denoised_pair(pair: list[RenderResult], samples: int, paper_samples: int) -> tuple[np.ndarray, float, float, float]:
+    """A pair denoised by the backend: (their mean, its estimated error and standard error, the
+    paper's error extrapolated from the two renders before the denoiser)."""
+    (a, b) = pair
+    out = (np.asarray(a.linear, np.float64) + b.linear) / 2
+    error, se = mean_and_error(denoised_rel_mse_map(a.linear, b.linear, a.noisy, b.noisy, norm=out).mean(axis=-1))
+    return out, error, se, extrapolated_rel_mse(a.noisy, b.noisy, samples, paper_samples, norm=out)
+
+
+def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
+                     encode: Callable[[np.ndarray], np.ndarray]) -> TargetedResult:
+    """Render pairs of independent images (``render(samples, i)``: the i-th render's seed is the
+    caller's) until the estimated error of the image reaches the paper preset's estimated error
+    at this view (with ``target.confidence`` standard errors to spare), or the budget is spent.
+
+    Every render's raw samples (before a denoiser) are accumulated: their mean is an unbiased
+    image of all the samples spent, which reaches the target at about the paper's samples. Renders
+    denoised by the backend cannot be accumulated: a step renders a new pair with the samples
+    the last pair's estimate asks for, and that pair's mean is the other candidate; its error
+    estimate needs nothing of the denoiser but that it treats the two renders alike and
+    independently. The image is the candidate with the lower bound; the next step is the
+    cheaper way to the target."""
+    raw, history, stats, phases = _Raw(), [], {}, {}
+    n, renders, spent, best, den_step = target.start_samples, 0, 0, None, True
+    while True:
+        pair = []
+        for g in (0, 1):
+            res = render(n, renders)
+            got = int(res.stats.get("samples", res.stats.get("spp", n)))
+            renders, spent = renders + 1, spent + got
+            raw.add(g, res.noisy if res.noisy is not None else res.linear, got)
+            pair.append(res)
+            for k, v in (res.stats.get("phases") or {}).items():  # the image's time is every render's
+                phases[k] = phases.get(k, 0.0) + v
+            stats = res.stats
+        out, error, se, paper = raw.estimate(target.paper_samples)
+        raw_need = samples_needed([(spent, error + target.confidence * se)], paper) - spent
+        best = (out, error, se)
+        den_need = None
+        if pair[0].noisy is not None:
+            d_out, d_err, d_se, _ = _denoised_pair(pair, got, target.paper_samples)
+            if den_step:  # a pair rendered for the denoised way (not a top-up of the raw one)
+                history.append((2 * got, d_err + target.confidence * d_se))
+            if d_err + target.confidence * d_se < error + target.confidence * se:
+                best = (d_out, d_err, d_se)
+            den_need = 2 * math.ceil(samples_needed(history, paper) / 2)
+        out, error, se = best
+        if error + target.confidence * se <= paper or spent + 2 > target.max_samples:
+            break
+        # the cheaper way on: more raw samples for the accumulation, or a new, larger denoised pair
+        # (whose samples are all new: it wins only at half the cost, its fall being predicted)
+        den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
+        if den_step:
+            n = max(n + 1, den_need // 2)
+        else:
+            n = max(1, math.ceil(raw_need / 2))
+        n = min(n, (target.max_samples - spent) // 2)
+        if n < 1:
+            break
+    linear = out.astype(np.float32)
+    res = RenderResult(rgb=encode(linear), linear=linear, stats={**stats, "phases": phases})
+    return TargetedResult(res, spent, renders, error, paper, history, se)

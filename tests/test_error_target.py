@@ -1,0 +1,223 @@
+"""Error estimates without a reference (specsynth.model.error), on images whose noise is known.
+
+A synthetic renderer stands in for a path tracer here because the property tested is statistical:
+an image ``mu + sigma / sqrt(samples) * N(0, 1)`` per pixel has exactly the variance the estimates
+assume, so their answers can be checked against the truth. The real renderers' estimates are
+measured against converged references by ``specsynth bench`` (docs/quality.md) and in
+tests/test_cycles.py / tests/test_mitsuba.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specsynth.model.colour import linear_to_srgb8
+from specsynth.model.error import (
+    ErrorTarget,
+    extrapolated_rel_mse,
+    samples_needed,
+    rel_mse,
+    render_to_target,
+    split_rel_mse,
+)
+from specsynth.model.ir import RenderResult
+
+SHAPE = (96, 128, 3)
+
+
+def scene(seed: int) -> np.ndarray:
+    """A converged image: smooth light with a dark and a bright region."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]] / 100.0
+    base = 0.05 + 0.8 * np.exp(-((x - rng.uniform(0.2, 1)) ** 2 + (y - rng.uniform(0.2, 0.8)) ** 2) * 4)
+    return np.repeat(base[..., None], 3, axis=2) * rng.uniform(0.5, 1.0, 3)
+
+
+class NoisyRenderer:
+    """Unbiased renders of ``mu``: per-pixel standard deviation ``sigma * mu / sqrt(samples)``."""
+
+    def __init__(self, mu: np.ndarray, sigma: float, seed: int) -> None:
+        self.mu, self.sigma, self.seed, self.calls = mu, sigma, seed, []
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        self.calls.append(samples)
+        rng = np.random.default_rng((self.seed, i))
+        x = self.mu + self.sigma * self.mu / np.sqrt(samples) * rng.standard_normal(self.mu.shape)
+        x = x.astype(np.float32)
+        return RenderResult(rgb=linear_to_srgb8(x), linear=x, stats={"samples": samples, "phases": {"trace": 0.5}})
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 2.0))
+def test_split_estimate_is_the_error_of_the_mean(seed, sigma):
+    mu = scene(seed)
+    r = NoisyRenderer(mu, sigma, seed)
+    a, b = r(4, 0).linear, r(4, 1).linear
+    truth = rel_mse((a + b) / 2, mu)
+    assert split_rel_mse(a, b, norm=mu) == pytest.approx(truth, rel=0.08)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 2.0), n=st.integers(1, 8), big=st.integers(16, 400))
+def test_extrapolated_error_is_a_render_of_more_samples(seed, sigma, n, big):
+    mu = scene(seed)
+    r = NoisyRenderer(mu, sigma, seed)
+    predicted = extrapolated_rel_mse(r(n, 0).linear, r(n, 1).linear, n, big, norm=mu)
+    assert predicted == pytest.approx(rel_mse(r(big, 2).linear, mu), rel=0.08)
+
+
+@settings(max_examples=50, deadline=None)
+@given(n=st.integers(2, 10_000), error=st.floats(1e-6, 1.0), target=st.floats(1e-6, 1.0))
+def test_samples_needed_reach_the_target_when_error_falls_as_one_over_samples(n, error, target):
+    need = samples_needed([(n, error)], target)
+    assert n <= need <= 8 * n
+    if error <= target:
+        assert need == n
+    elif need < 8 * n:
+        assert error * n / need <= target * (1 + 1e-9)
+
+
+def test_samples_needed_learn_a_slower_fall_from_two_steps():
+    """A denoised image whose error fell as samples^-0.5 from 4 to 16 samples needs 4x for half."""
+    assert samples_needed([(4, 0.04), (16, 0.02)], 0.01) == 64
+
+
+@pytest.mark.parametrize("sigma", [0.3, 3.0])  # two images of very different noise
+def test_render_to_target_lands_on_the_target(sigma):
+    """The mean of the pairs rendered has (truly, against mu) at most 10 % more error than the
+    paper preset's render would have, whichever noise the image has, for hardly more samples."""
+    mu = scene(7)
+    r = NoisyRenderer(mu, sigma, 11)
+    paper = 225
+    done = render_to_target(r, ErrorTarget(paper_samples=paper, start_samples=2, max_samples=4 * paper), linear_to_srgb8)
+    truth_paper = float(np.mean((sigma * mu) ** 2 / paper / (mu**2 + 1e-2)))
+    assert done.target == pytest.approx(truth_paper, rel=0.1)
+    assert rel_mse(done.result.linear, mu) <= 1.1 * truth_paper
+    assert done.error <= done.target
+    assert done.samples == sum(r.calls) and done.renders == len(r.calls) and done.renders % 2 == 0
+    assert done.samples <= 1.15 * paper + 4  # a raw render needs the paper's samples: hardly more
+    assert done.result.stats["phases"]["trace"] == pytest.approx(0.5 * done.renders)
+    assert done.result.rgb.tobytes() == linear_to_srgb8(done.result.linear).tobytes()
+
+
+def blur(linear: np.ndarray, k: int = 7) -> np.ndarray:
+    """A stand-in denoiser: a k x k box filter on either side of the image's edge (as a guided
+    denoiser keeps an edge its albedo guide shows), biased where the light is curved."""
+    from scipy.ndimage import uniform_filter
+
+    out = np.empty_like(linear)
+    for part in (np.s_[:, :60], np.s_[:, 60:]):
+        out[part] = uniform_filter(linear[part], size=(k, k, 1), mode="nearest")
+    return out
+
+
+class DenoisingRenderer(NoisyRenderer):
+    """Renders denoised by the renderer, which also returns the image before its denoiser."""
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        res = super().__call__(samples, i)
+        return RenderResult(res.rgb, blur(res.linear), res.stats, noisy=res.linear)
+
+
+@pytest.mark.parametrize("sigma", [0.3, 3.0])
+def test_a_denoised_image_lands_on_the_target_bias_included(sigma):
+    """With a denoiser the estimate sees the blur's bias too: the result's true error is within
+    10 % of the paper preset's, for fewer samples than the paper's."""
+    mu = scene(4)
+    mu[:, 60:] *= 0.3  # an edge for the blur to smear
+    r = DenoisingRenderer(mu, sigma, 3)
+    paper = 225
+    done = render_to_target(r, ErrorTarget(paper, 2, 4 * paper), linear_to_srgb8)
+    truth_paper = float(np.mean((sigma * mu) ** 2 / paper / (mu**2 + 1e-2)))
+    truth = rel_mse(done.result.linear, mu)
+    assert abs(done.error - truth) <= 3 * done.error_se + 0.02 * truth  # the estimate and its error
+    assert truth <= 1.1 * truth_paper
+    assert done.samples < paper  # the denoiser's saving
+    assert np.abs(done.result.linear - mu).mean() < np.abs(r(2, 99).linear - mu).mean()
+
+
+def test_render_to_target_keeps_to_its_budget():
+    r = NoisyRenderer(scene(3), 50.0, 5)  # far too noisy for its budget
+    done = render_to_target(r, ErrorTarget(paper_samples=100, start_samples=2, max_samples=12), linear_to_srgb8)
+    assert done.samples <= 12 and done.error > done.target
+
+
+def test_render_to_target_is_deterministic():
+    runs = [render_to_target(NoisyRenderer(scene(1), 1.0, 2), ErrorTarget(100, 2, 400), linear_to_srgb8)
+            for _ in range(2)]
+    assert runs[0].result.linear.tobytes() == runs[1].result.linear.tobytes()
+    assert runs[0].stats() == runs[1].stats()
+
+
+def test_error_target_refuses_an_empty_budget():
+    with pytest.raises(ValueError, match="at least 1 sample"):
+        ErrorTarget(paper_samples=100, start_samples=0, max_samples=100)
+    with pytest.raises(ValueError, match="budget of two"):
+        ErrorTarget(paper_samples=100, start_samples=8, max_samples=10)
+
+
+# --------------------------------------------------------------------------- in a build
+
+TINY = """\
+name: tiny
+seed: 5
+intrinsics: {width: 96, height: 72, fx: 86.0, fy: 87.0, cx: 47.5, cy: 35.5}
+objects:
+  builtin: [duck, mug]
+scenes:
+  - name: room
+arrangements:
+  count: 1
+cameras:
+  per_arrangement: 2
+  distance: [0.35, 0.7]
+quality: {level: high, control: error}
+backend:
+  name: BACKEND
+outputs:
+  image_format: png
+"""
+
+
+def test_error_control_needs_a_backend_with_sampling_noise(tmp_path):
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import SpecError, load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "photo"))
+    with pytest.raises(SpecError) as e:
+        compile_spec(load_spec(f))
+    assert "quality.control" in str(e.value) and "t.yaml:13:" in str(e.value)
+
+
+@pytest.mark.slow
+def test_a_build_records_samples_and_error_per_image(tmp_path):
+    """Cycles renders each image to its target; the record, timings.parquet, summary.json and
+    `specsynth stats` carry what each image took and reached."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    from specsynth.model.records import ImageRecord
+    from specsynth.outputs.qa import dataset_stats
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.run.build import build
+    from specsynth.spec.yamlio import load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles"))
+    out = tmp_path / "out"
+    summary = build(compile_spec(load_spec(f)), out, jobs=1)
+    assert not summary.failures and summary.images == 2
+    t = pq.read_table(out / "parquet" / "timings.parquet").to_pandas()
+    assert t["error_target"].notna().all() and (t["samples"] >= 2).all()
+    assert ((t["error_estimate"] <= 1.1 * t["error_target"]) | (t["samples"] + 4 > 225)).all()
+    saved = json.loads((out / ".specsynth" / "summary.json").read_text())["error_control"]
+    assert saved["images"] == 2 and saved["samples"]["max"] == int(t["samples"].max())
+    recs = [ImageRecord.from_json(json.loads(p.read_text())) for p in (out / ".specsynth").rglob("record.json")]
+    assert recs and all(r.stats["renders"] % 2 == 0 for r in recs if "renders" in r.stats)
+    table = dataset_stats(out, tmp_path / "stats")
+    assert table["error_control"]["images"] == 2 and (tmp_path / "stats" / "quality.png").is_file()
