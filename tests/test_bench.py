@@ -104,3 +104,26 @@ def test_bench_refuses_an_unknown_setting_before_building_anything(tmp_path):
                        timeout=300)
     assert r.returncode != 0 and "--only: no setting 'hgh'" in r.stdout + r.stderr
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_bench_targeted_row_and_cached_references(tmp_path):
+    """`high+targeted` (quality.control: error) has per-view estimates and targets; a second run
+    into the same folder renders no reference (they are cached by content) and measures the same
+    reference-based errors."""
+    out = tmp_path / "bench"
+    cmd = [sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
+           "--views", "1", "--scale", "0.05", "--ref-factor", "1", "--backend", "cycles", "--levels", "high",
+           "--only", "high+targeted", "--set", "arrangements.count=1"]
+    runs = []
+    for _ in range(2):
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env={**os.environ, "COLUMNS": "250"})
+        assert r.returncode == 0, r.stdout + r.stderr
+        runs.append(json.loads((out / "bench.json").read_text())["rows"])
+    assert len(list((out / "bench" / "references").glob("*.npz"))) == 1
+    for rows in runs:
+        row = next(r for r in rows if r["setting"] == "high+targeted")
+        view = row["views"][0]
+        assert view["error_target"] > 0 and view["error_estimate"] >= 0 and view["samples"] >= 2
+    ref = [next(r for r in rows if r["setting"] == "reference") for rows in runs]
+    assert ref[0]["seconds"] == ref[1]["seconds"]  # the cached reference's own render time

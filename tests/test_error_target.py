@@ -205,6 +205,7 @@ def test_a_build_records_samples_and_error_per_image(tmp_path):
     from specsynth.outputs.qa import dataset_stats
     from specsynth.plan.compiler import compile_spec
     from specsynth.run.build import build
+    from specsynth.run.store import Store
     from specsynth.spec.yamlio import load_spec
 
     f = tmp_path / "t.yaml"
@@ -217,7 +218,8 @@ def test_a_build_records_samples_and_error_per_image(tmp_path):
     assert ((t["error_estimate"] <= 1.1 * t["error_target"]) | (t["samples"] + 4 > 225)).all()
     saved = json.loads((out / ".specsynth" / "summary.json").read_text())["error_control"]
     assert saved["images"] == 2 and saved["samples"]["max"] == int(t["samples"].max())
-    recs = [ImageRecord.from_json(json.loads(p.read_text())) for p in (out / ".specsynth").rglob("record.json")]
-    assert recs and all(r.stats["renders"] % 2 == 0 for r in recs if "renders" in r.stats)
+    store = Store(out)
+    recs = [ImageRecord.from_json(store.load("render", k)) for k in store.keys("render")]
+    assert len(recs) == 2 and all(r.stats["renders"] % 2 == 0 and r.stats["samples"] >= 2 for r in recs)
     table = dataset_stats(out, tmp_path / "stats")
     assert table["error_control"]["images"] == 2 and (tmp_path / "stats" / "quality.png").is_file()
