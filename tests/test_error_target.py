@@ -18,6 +18,7 @@ from specsynth.model.colour import linear_to_srgb8
 from specsynth.model.error import (
     ErrorTarget,
     extrapolated_rel_mse,
+    sample_step,
     samples_needed,
     rel_mse,
     render_to_target,
@@ -80,6 +81,14 @@ def test_samples_needed_reach_the_target_when_error_falls_as_one_over_samples(n,
         assert error * n / need <= target * (1 + 1e-9)
 
 
+@given(n=st.integers(1, 1_000_000))
+def test_sample_steps_are_few_and_close_above(n):
+    step = sample_step(n)
+    assert n <= step <= max(2, 1.5 * n)
+    k = step // 3 if step % 3 == 0 else step
+    assert k & (k - 1) == 0  # 2^k or 3 * 2^k: two counts an octave
+
+
 def test_samples_needed_learn_a_slower_fall_from_two_steps():
     """A denoised image whose error fell as samples^-0.5 from 4 to 16 samples needs 4x for half."""
     assert samples_needed([(4, 0.04), (16, 0.02)], 0.01) == 64
@@ -98,7 +107,8 @@ def test_render_to_target_lands_on_the_target(sigma):
     assert rel_mse(done.result.linear, mu) <= 1.1 * truth_paper
     assert done.error <= done.target
     assert done.samples == sum(r.calls) and done.renders == len(r.calls) and done.renders % 2 == 0
-    assert done.samples <= 1.15 * paper + 4  # a raw render needs the paper's samples: hardly more
+    # a raw render needs the paper's samples; rounded counts and 1.645 standard errors cost more
+    assert done.samples <= 1.6 * paper
     assert done.result.stats["phases"]["trace"] == pytest.approx(0.5 * done.renders)
     assert done.result.rgb.tobytes() == linear_to_srgb8(done.result.linear).tobytes()
 

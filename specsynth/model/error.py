@@ -124,6 +124,15 @@ def samples_needed(history: list[tuple[int, float]], target: float) -> int:
     return min(MAX_GROWTH * n1, math.ceil(n1 * (e1 / target) ** (1 / alpha)))
 
 
+def sample_step(n: int) -> int:
+    """``n`` rounded up to 2^k or 3 * 2^k (at most 1.5 times ``n``): renderers that compile a kernel
+    per sample count (Mitsuba's JIT variants) then meet two counts an octave, compiled once for
+    every image of a build."""
+    n = max(1, n)
+    k = 1 << (n.bit_length() - 1)  # the power of two at or below n
+    return next(c for c in (k, 3 * k // 2, 2 * k) if c >= n and (c == k or c % 3 == 0 or c == 2 * k))
+
+
 class _Raw:
     """Raw renders accumulated into two independent sample-weighted halves (even and odd renders)."""
 
@@ -198,7 +207,7 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
             n = max(n + 1, den_need // 2)
         else:
             n = max(1, math.ceil(raw_need / 2))
-        n = min(n, (target.max_samples - spent) // 2)
+        n = min(sample_step(n), (target.max_samples - spent) // 2)
         if n < 1:
             break
     linear = out.astype(np.float32)
