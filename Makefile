@@ -26,17 +26,20 @@ demo: install
 	$(BIN)/specsynth build specs/demo.yaml --out out/demo --jobs $(JOBS)
 	$(BIN)/specsynth build specs/demo_bl.yaml --out out/demo_bl --jobs $(JOBS)
 
+# The core's tests and each backend's own (backends/<name>/tests).
+TESTS := tests $(addsuffix /tests,$(PLUGINS))
+
 # The default suite: everything but the slow PBR renders (< ~20 min on 2 cores).
 test: install
 	$(BIN)/lint-imports
-	$(BIN)/pytest -q -m "not slow" -p no:cacheprovider
+	$(BIN)/pytest -q -m "not slow" -p no:cacheprovider $(TESTS)
 
 test-slow: install
-	$(BIN)/pytest -q -m "slow" -p no:cacheprovider
+	$(BIN)/pytest -q -m "slow" -p no:cacheprovider $(TESTS)
 
 test-all: install
 	$(BIN)/lint-imports
-	$(BIN)/pytest -q -p no:cacheprovider
+	$(BIN)/pytest -q -p no:cacheprovider $(TESTS)
 
 bench: install
 	$(BIN)/specsynth bench specs/demo.yaml --out bench-out/demo --views 2 --scale 0.25 --ref-factor 4

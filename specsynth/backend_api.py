@@ -9,7 +9,8 @@ core never imports a renderer. A backend class is constructed once per worker pr
     for cam in cameras: backend.render(cam, quality, seed)   # only the camera moves
     backend.close()
 
-Every backend must pass ``specsynth.testing.conformance`` (see tests/test_backend_conformance.py).
+Every backend must pass ``specsynth.testing.conformance``: its own tests subclass the base classes of
+``specsynth.testing.suite`` (docs/plugins.md).
 """
 
 from __future__ import annotations

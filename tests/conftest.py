@@ -1,73 +1,10 @@
 from __future__ import annotations
 
-import functools
-import importlib.machinery
 import json
-import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-
-# --------------------------------------------------------------------------- the slow marker
-# `slow` means "renders with a PBR backend" (the default suite runs -m "not slow"): a test without
-# the mark that renders with Cycles or Mitsuba in this process fails. The backends' classes get a
-# counting render() when their modules are imported.
-PBR_BACKENDS = {"specsynth_cycles.backend": "CyclesBackend", "specsynth_mitsuba.backend": "MitsubaBackend"}
-_PBR_RENDERS: list[str] = []
-_WATCHING = [False]
-
-
-def _count_renders(cls) -> None:
-    render = cls.render
-
-    @functools.wraps(render)
-    def counted(self, *args, **kwargs):
-        if _WATCHING[0]:
-            _PBR_RENDERS.append(cls.__name__)
-        return render(self, *args, **kwargs)
-
-    cls.render = counted
-
-
-class _CountPbrRenders:
-    """A meta path finder that only adds the counting render() to a PBR backend once it is loaded."""
-
-    def find_spec(self, name, path, target=None):
-        if name not in PBR_BACKENDS:
-            return None
-        spec = importlib.machinery.PathFinder.find_spec(name, path)
-        if spec is None or spec.loader is None:
-            return None
-        exec_module = spec.loader.exec_module
-
-        def exec_and_count(module):
-            exec_module(module)
-            _count_renders(getattr(module, PBR_BACKENDS[name]))
-
-        spec.loader.exec_module = exec_and_count
-        return spec
-
-
-for _name, _cls in PBR_BACKENDS.items():  # already imported (by a plugin listing, say)
-    if _name in sys.modules:
-        _count_renders(getattr(sys.modules[_name], _cls))
-sys.meta_path.insert(0, _CountPbrRenders())
-
-
-@pytest.fixture(autouse=True)
-def _pbr_renders_are_marked_slow(request):
-    slow = request.node.get_closest_marker("slow") is not None
-    _PBR_RENDERS.clear()
-    _WATCHING[0] = not slow
-    yield
-    _WATCHING[0] = False
-    if _PBR_RENDERS:
-        pytest.fail(f"{request.node.nodeid} rendered {len(_PBR_RENDERS)} image(s) with {sorted(set(_PBR_RENDERS))} "
-                    "but is not marked slow", pytrace=False)
 
 
 def write_bop_models(folder: Path, n: int, seed: int = 0) -> Path:

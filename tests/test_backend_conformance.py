@@ -1,83 +1,67 @@
-"""Every installed render backend against specsynth.testing.conformance.
-
-One test per (backend, check); the backend instance is shared per module because PBR backends
-take seconds to start. Every backend with an entry point is tested: one that is installed but
-cannot be imported fails (PluginNotFound says what to reinstall); the path tracers are marked slow.
+"""The conformance suite itself (specsynth.testing.conformance and the base classes of
+specsynth.testing.suite), on the example plugin ``flat``: it passes, and deliberately broken
+variants of it each fail the check aimed at their bug. Each built-in backend runs the suite in its
+own tests (backends/<name>/tests), by subclassing the same base classes.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
-from specsynth.backend_api import available_backends, load_backend
-from specsynth.testing.conformance import CHECKS, ConformanceContext, NotDeclared, not_applicable
-
-SLOW_BACKENDS = {"cycles", "mitsuba"}
-# Options for the conformance run, where a backend's defaults are not what the suite wants.
-OPTIONS: dict[str, dict] = {}
+from specsynth.model.ir import RenderResult, RenderScene
+from specsynth.plugins import backend_plugin, load_backend
+from specsynth.testing.conformance import CHECKS, ConformanceContext, ConformanceError
+from specsynth.testing.suite import BackendConformanceTests
 
 
-def _params():
-    for name in available_backends():
-        marks = [pytest.mark.slow] if name in SLOW_BACKENDS else []
-        yield pytest.param(name, id=name, marks=marks)
+class TestFlatConformance(BackendConformanceTests):
+    """flat draws unlit base colours through a pinhole: the thin-lens and motion-blur tests are
+    skipped with the reason (and a rasteriser has no PBR maps: no MaterialChannelTests)."""
+
+    backend = "flat"
 
 
-@pytest.fixture(scope="module", params=list(_params()))
-def ctx(request, tmp_path_factory):
-    name = request.param
-    load_backend(name)  # installed (it has an entry point): it must load, not be skipped
-    context = ConformanceContext(name, OPTIONS.get(name, {"name": name}), tmp_path_factory.mktemp(f"conf_{name}"))
-    yield context
-    context.close()
-
-
-@pytest.mark.parametrize("check", list(CHECKS))
-def test_conformance(ctx, check):
-    """Checks of a capability the backend does not declare are reported as skipped with the reason,
-    never as passes; every other check raises ConformanceError on a failure."""
-    reason = not_applicable(ctx, check)
-    if reason is not None:
-        with pytest.raises(NotDeclared):  # a check that does not apply must not pass silently
-            CHECKS[check](ctx)
-        pytest.skip(reason)
-    CHECKS[check](ctx)
+def test_the_base_class_runs_every_check():
+    tests = {name.removeprefix("test_") for name in vars(BackendConformanceTests) if name.startswith("test_")}
+    assert tests == set(CHECKS)
 
 
 # --------------------------------------------------------------------------- the suite catches bugs
-# Deliberately broken variants of the photo backend: each must fail the check aimed at its bug.
+# Deliberately broken variants of the flat backend: each must fail the check aimed at its bug.
 
 
 def _broken_variants():
-    from specsynth.model.ir import RenderResult
-    from specsynth_photo.backend import PhotoBackend
+    flat = load_backend("flat")  # the example plugin (make install installs it): an ImportError is a failure
 
-    class UpsideDown(PhotoBackend):  # image rows in OpenGL order
+    class UpsideDown(flat):  # image rows in OpenGL order
         def render(self, camera, quality, seed, *, clamp=None):
             r = super().render(camera, quality, seed, clamp=clamp)
             return RenderResult(rgb=r.rgb[::-1].copy(), stats=r.stats)
 
-    class Leaky(PhotoBackend):  # load() adds to the previous scene instead of replacing it
+    class Leaky(flat):  # load() adds to the previous scene instead of replacing it
         def load(self, scene):
-            from specsynth.model.ir import RenderScene
-
             prev = getattr(self, "_seen", ())
             self._seen = tuple({m.name: m for m in prev + scene.meshes}.values())
             super().load(RenderScene(meshes=self._seen))
 
-    class Unseeded(PhotoBackend):  # randomness that does not come from the seed
+    class Unseeded(flat):  # noise from a generator made once per backend, not from each render's seed
         def render(self, camera, quality, seed, *, clamp=None):
-            self._calls = getattr(self, "_calls", 0) + 1
-            return super().render(camera, quality, seed + self._calls, clamp=clamp)
+            r = super().render(camera, quality, seed, clamp=clamp)
+            self._rng = getattr(self, "_rng", None) or np.random.default_rng(0)
+            noise = self._rng.integers(0, 8, r.rgb.shape, dtype=np.uint8)
+            return RenderResult(rgb=np.maximum(r.rgb, 8) - noise, stats=r.stats)
 
-    class WrongShape(PhotoBackend):
+    class WrongShape(flat):
         def render(self, camera, quality, seed, *, clamp=None):
             r = super().render(camera, quality, seed, clamp=clamp)
             return RenderResult(rgb=r.rgb[:, :-1].copy(), stats=r.stats)
 
     return [
-        pytest.param(PhotoBackend, "depth_of_field", id="claims-depth-of-field"),  # declared, but a pinhole
-        pytest.param(PhotoBackend, "motion_blur", id="claims-motion-blur"),  # declared, but a still camera
+        pytest.param(flat, "depth_of_field", id="claims-depth-of-field"),  # declared, but a pinhole
+        pytest.param(flat, "motion_blur", id="claims-motion-blur"),  # declared, but a still camera
         pytest.param(UpsideDown, "silhouettes", id="upside-down"),
         pytest.param(Leaky, "reload", id="leaky-load"),
         pytest.param(Unseeded, "determinism", id="unseeded"),
@@ -86,27 +70,60 @@ def _broken_variants():
     ]
 
 
-@pytest.fixture(scope="module")
-def photo_available():
-    assert load_backend("photo").__name__ == "PhotoBackend"
-
-
-def _broken_params():
-    return _broken_variants()  # the photo backend is part of this repository: an ImportError is a failure
-
-
-@pytest.mark.parametrize("cls, check", _broken_params())
-def test_suite_catches_broken_backend(photo_available, tmp_path, cls, check):
-    from specsynth.testing.conformance import ConformanceError
-
-    from dataclasses import replace
-
-    from specsynth.plugins import backend_plugin
-
-    claims = replace(backend_plugin("photo").capabilities, depth_of_field=True, motion_blur=True)
-    context = ConformanceContext("photo", {"name": "photo"}, tmp_path, backend_class=cls, capabilities=claims)
+@pytest.mark.parametrize("cls, check", _broken_variants())
+def test_suite_catches_broken_backend(tmp_path, cls, check):
+    claims = replace(backend_plugin("flat").capabilities, depth_of_field=True, motion_blur=True)
+    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=cls, capabilities=claims)
     try:
         with pytest.raises(ConformanceError):
             CHECKS[check](context)
     finally:
         context.close()
+
+
+# --------------------------------------------------------------------------- the slow mark tells the truth
+# A backend whose renderer draws nothing, loaded by "module:attribute" (not installed), declared slow.
+
+SLOW_PLUGIN = """
+from specsynth.plugins import BackendPlugin
+from specsynth.spec.models import BackendOptions
+
+PLUGIN = BackendPlugin(name="sleepy", options=BackendOptions, backend="sleepy_renderer:Renderer")
+"""
+SLOW_RENDERER = """
+class Renderer:
+    def render(self, camera=None, quality=None, seed=0):
+        return None
+"""
+GUARDED = """
+import pytest
+from sleepy_renderer import Renderer
+
+
+def test_renders_unmarked():
+    Renderer().render()
+
+
+@pytest.mark.slow
+def test_renders_marked():
+    Renderer().render()
+
+
+def test_renders_nothing():
+    Renderer()
+"""
+
+
+def test_a_test_that_renders_with_a_slow_backend_without_the_mark_fails(tmp_path):
+    """specsynth.testing.pytest_plugin, told that a backend is slow (the repository tells it cycles
+    and mitsuba): the unmarked test that renders with it fails, the marked one passes."""
+    import subprocess
+    import sys
+
+    for name, text in (("sleepy_plugin.py", SLOW_PLUGIN), ("sleepy_renderer.py", SLOW_RENDERER), ("test_guarded.py", GUARDED)):
+        (tmp_path / name).write_text(text)
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "specsynth.testing.pytest_plugin",
+                        "-o", "specsynth_slow_backends=sleepy_plugin:PLUGIN", "-o", "markers=slow: renders", "test_guarded.py"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert "test_renders_unmarked rendered 1 image(s) with ['Renderer'] but is not marked slow" in r.stdout, r.stdout
+    assert "3 passed, 1 error in" in r.stdout, r.stdout

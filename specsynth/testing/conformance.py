@@ -7,11 +7,9 @@ run against any plugin::
     from specsynth.testing.conformance import check_backend
     check_backend("mitsuba", {"name": "mitsuba"}, tmp_path)
 
-or, one pytest test per check (see tests/test_backend_conformance.py)::
-
-    ctx = ConformanceContext("photo", {"name": "photo"}, tmp_path)
-    for name, check in CHECKS.items(): check(ctx)
-    ctx.close()
+or, one pytest test per check, in the backend's own tests: subclass
+``specsynth.testing.suite.BackendConformanceTests`` (it runs every check of ``CHECKS`` on one
+``ConformanceContext``) and add checks of the backend's own.
 
 The scene: a 1 m grey plane (scene geometry), a textured box and a vertex-coloured sphere
 (dataset objects), a sun and an area light, a grey world; an 80x60 camera with an off-centre
