@@ -39,14 +39,3 @@ def lm_models(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def ruapc_models(tmp_path_factory) -> Path:
     return write_bop_models(tmp_path_factory.mktemp("ruapc") / "models", 14, seed=1)
-
-
-@pytest.fixture(scope="module")
-def mitsuba_backend():
-    """One warm Mitsuba backend per test module (variant probe and kernel cache are per process)."""
-    pytest.importorskip("mitsuba")
-    from specsynth_mitsuba.backend import MitsubaBackend
-
-    b = MitsubaBackend({"variant": "auto"}, threads=2)
-    yield b
-    b.close()

@@ -651,32 +651,6 @@ def test_ctrl_c_of_a_build_with_workers_prints_no_traceback(tmp_path):
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
 
 
-DRJIT_PROBE = """
-from specsynth_mitsuba.backend import MitsubaBackend
-MitsubaBackend({"variant": "llvm_ad_rgb"})
-import drjit as dr
-from drjit.llvm import Float
-dr.eval(dr.arange(Float, 1000) * 3.25 + 0.5)  # a kernel compiled, and cached on disk
-print("ok")
-"""
-
-
-def test_mitsuba_keeps_drjits_kernel_cache_under_the_specsynth_cache(tmp_path):
-    pytest.importorskip("specsynth_mitsuba")
-    mi = pytest.importorskip("mitsuba")
-    if "llvm_ad_rgb" not in mi.variants():
-        pytest.skip("no LLVM variant: Dr.Jit compiles nothing")
-    env = {k: v for k, v in os.environ.items() if k != "DRJIT_CACHE_DIR"}
-    env.update(HOME=str(tmp_path / "home"), SPECSYNTH_CACHE=str(tmp_path / "cache"))
-    (tmp_path / "home").mkdir()
-    r = subprocess.run([sys.executable, "-c", DRJIT_PROBE], capture_output=True, text=True, timeout=120, env=env)
-    if r.returncode != 0 and "llvm" in r.stderr.lower():
-        pytest.skip("LLVM variant cannot run here")
-    assert r.stdout.strip().endswith("ok"), r.stderr[-2000:]
-    assert not (tmp_path / "home" / ".drjit").exists()
-    assert any((tmp_path / "cache" / "drjit").iterdir())
-
-
 # --------------------------------------------------------------------------- the limits, at their edges
 
 

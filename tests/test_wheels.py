@@ -100,7 +100,7 @@ def test_the_wheels_hold_the_package_data_the_command_and_the_backends(wheels):
         entry_points = z.read(next(n for n in names if n.endswith(".dist-info/entry_points.txt"))).decode()
     assert "specsynth = specsynth.cli:main" in entry_points
     assert not [n for n in names if n.split("/")[0] not in ("specsynth", "specsynth-0.1.0.dist-info")]
-    for dist in ("specsynth_cycles", "specsynth_mitsuba", "specsynth_photo"):
+    for dist in (d for d in DISTRIBUTIONS.values() if d != "specsynth"):
         with zipfile.ZipFile(built[dist]) as z:
             names = set(z.namelist())
             entry_points = z.read(next(n for n in names if n.endswith(".dist-info/entry_points.txt"))).decode()
@@ -110,10 +110,12 @@ def test_the_wheels_hold_the_package_data_the_command_and_the_backends(wheels):
 
 def test_the_installed_command_line_works_outside_the_repository(installed):
     bin_, env, work = installed["bin"], installed["env"], installed["work"]
-    r = run([str(bin_ / "python"), "-c", "import specsynth, specsynth_cycles, specsynth_mitsuba, specsynth_photo; "
-             "print(specsynth.__file__, specsynth_cycles.__file__, specsynth_mitsuba.__file__, specsynth_photo.__file__)"],
-            cwd=work, env=env)
-    assert all(Path(p).is_relative_to(installed["venv"]) for p in r.stdout.split())
+    # the core and every backend its entry points name are imported from the fresh environment
+    r = run([str(bin_ / "python"), "-c", "import importlib, specsynth; from importlib.metadata import entry_points; "
+             "print(specsynth.__file__, *(importlib.import_module(ep.module).__file__ "
+             "for ep in entry_points(group='specsynth.backends')))"], cwd=work, env=env)
+    files = r.stdout.split()
+    assert len(files) == len(DISTRIBUTIONS) and all(Path(p).is_relative_to(installed["venv"]) for p in files)
 
     r = run([str(bin_ / "specsynth"), "--version"], cwd=work, env=env)
     assert r.stdout.startswith("specsynth 0.1.0 ")

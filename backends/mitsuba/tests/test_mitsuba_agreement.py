@@ -21,7 +21,7 @@ from specsynth.views.cameras import look_at
 from specsynth_mitsuba import mapping
 from specsynth_mitsuba import scene as mscene
 
-REPO = Path(__file__).resolve().parents[1]
+PROJECT = Path(__file__).resolve().parents[1]  # backends/mitsuba: the child imports specsynth_mitsuba from here
 
 
 # ----------------------------------------------------------------------------- pure mapping
@@ -146,7 +146,7 @@ b = MitsubaBackend({{'variant': 'auto'}}, threads=1)
 b.load(RenderScene(meshes=(), world=WorldIR(kind='envmap', envmap={str(exr)!r})))
 print('loaded')
 """
-    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", code], cwd=PROJECT, capture_output=True, text=True, timeout=120)
     assert "loaded" in r.stdout, r.stderr[-2000:]
 
 
