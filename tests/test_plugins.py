@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import re
 import subprocess
@@ -70,6 +71,57 @@ def test_core_names_no_backend():
             if t.type in (tokenize.NAME, tokenize.STRING) and not docstring and pat.search(t.string):
                 found.append(f"{p.relative_to(ROOT)}:{t.start[0]}: {t.string[:60]}")
     assert not found, "\n".join(found)
+
+
+def _backend_packages() -> set[str]:
+    """The packages of the backends in backends/ and of every installed backend plugin, but the
+    example ``flat``: the core's tests use that one (and the conformance suite) for "a backend"."""
+    from importlib import metadata
+
+    found = {p.parent.name for p in ROOT.glob("backends/*/*/__init__.py")}
+    found |= {ep.module.split(".")[0] for ep in metadata.entry_points(group="specsynth.backends")}
+    return found - {"specsynth_flat"}
+
+
+def _imported(source: str) -> set[str]:
+    """The top-level modules a file imports: its import statements, importorskip/import_module
+    calls, and the import lines of its strings (code it runs in a child process)."""
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module.split(".")[0])
+        elif (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None))
+              in ("importorskip", "import_module", "__import__") and node.args
+              and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+            out.add(node.args[0].value.split(".")[0])
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            for m in re.finditer(r"(?:^|;)\s*(?:from\s+([\w.]+)\s+import\b|import\s+([\w., ]+))", node.value, re.M):
+                names = [m[1]] if m[1] else [n.split()[0] for n in m[2].split(",") if n.strip()]
+                out |= {n.split(".")[0] for n in names}
+    return out
+
+
+def test_core_tests_import_no_backend():
+    """Each backend's tests live in backends/<name>/tests; the core's tests reach a backend only by
+    its name (load_backend, a spec's backend.name), the example flat plugin or the conformance suite."""
+    backends = _backend_packages()
+    assert {"specsynth_cycles", "specsynth_mitsuba", "specsynth_photo"} <= backends
+    found = [f"{p.relative_to(ROOT)}: {sorted(_imported(p.read_text()) & backends)}"
+             for p in sorted((ROOT / "tests").rglob("*.py")) if _imported(p.read_text()) & backends]
+    assert not found, "\n".join(found)
+
+
+def test_the_import_check_finds_every_form():
+    forms = ["import some_backend.backend", "from some_backend.backend import PhotoBackend",
+             "import numpy as np, some_backend", "pytest.importorskip('some_backend')",
+             "importlib.import_module('some_backend.options')",
+             "code = 'import json\\nfrom some_backend import PLUGIN\\n'",
+             "subprocess.run([sys.executable, '-c', 'import os; import some_backend'])"]
+    for form in forms:
+        assert "some_backend" in _imported(form), form
+    assert _imported("from specsynth.plugins import load_backend\nload_backend('photo')") == {"specsynth"}
 
 
 def test_every_installed_plugin_owns_its_options():
