@@ -77,18 +77,20 @@ def probe_in_child(code: str, timeout: float, env: dict | None = None) -> tuple[
 
 @dataclass(frozen=True)
 class BackendPlugin:
+    """What the core reads about a backend to validate, key, schedule and run a build, and no more.
+    (What `specsynth bench` tries beyond the quality levels is the bench's: a ``BENCH`` in the
+    optional ``bench`` module of the backend's package, read by ``specsynth.run.bench``.)"""
+
     name: str
     options: type  # a subclass of specsynth.spec.models.BackendOptions with ``name: Literal[<name>]``
     backend: str  # "module:Class" of the renderer, imported only where a render happens
     capabilities: Capabilities = Capabilities()
     distributions: tuple[str, ...] = ()  # whose versions change the pixels (read from metadata)
     revision: int = 1  # bump when the plugin's own code changes pixels for the same inputs
-    cost: tuple[float, float] = (1.0, 0.1)  # estimated seconds per render: fixed + per sample
+    # Estimated seconds per render, fixed + per sample: `specsynth plan`'s estimate and how many
+    # renders a build puts in one task.
+    cost: tuple[float, float] = (1.0, 0.1)
     install_hint: str = ""  # what to install when ``backend`` cannot be imported
-    # `specsynth bench`: extra settings per quality level (label suffix, option updates), and
-    # boolean options whose saving is measured by rendering the same views with and without.
-    bench_variants: tuple[tuple[str, dict[str, Any]], ...] = ()
-    bench_toggles: tuple[tuple[str, str], ...] = field(default=())
     # Quality levels low/medium/high: option values that reach (at least) the paper preset's image
     # error for less (measured by `specsynth bench --ladder`), e.g. {"high": {"samples": 16,
     # "denoise": True}}. Applied unless the spec sets the option itself; paper_* levels never.

@@ -97,6 +97,32 @@ def test_only_picks_the_named_settings_and_always_the_reference():
         pick_settings(every, ("high+denoise@3",))
 
 
+def test_bench_settings_are_the_backend_packages_own_not_the_plugin_records(tmp_path, monkeypatch):
+    """A backend says what the bench tries beyond the levels in its package's optional ``bench``
+    module (``BENCH``); the plugin record a build reads has no bench field."""
+    import dataclasses
+
+    from specsynth.plugins import BackendPlugin, PluginNotFound, backend_plugin
+    from specsynth.run.bench import BenchSettings, bench_settings, settings_for
+
+    assert not {f.name for f in dataclasses.fields(BackendPlugin)} & {"bench_variants", "bench_toggles"}
+    pkg = tmp_path / "benched"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "bench.py").write_text("from specsynth.run.bench import BenchSettings\n"
+                                  "BENCH = BenchSettings(variants=(('fast', {'samples': 2}),), toggles=(('budget', 'budget'),))\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    plugin = BackendPlugin(name="benched", options=object, backend="benched.renderer:Renderer")
+    assert bench_settings(plugin) == BenchSettings(variants=(("fast", {"samples": 2}),), toggles=(("budget", "budget"),))
+    assert [s.label for s in settings_for(plugin, 2, ("high",))] == ["high", "high+fast", "reference"]
+    (pkg / "bench.py").write_text("BENCH = {'variants': ()}\n")
+    monkeypatch.delitem(sys.modules, "benched.bench")
+    with pytest.raises(PluginNotFound, match=r"benched\.bench\.BENCH of backend 'benched' is not a"):
+        bench_settings(plugin)
+    assert bench_settings(backend_plugin("flat")) == BenchSettings()  # no bench module: the levels alone
+    assert bench_settings(backend_plugin("cycles")).toggles == (("light-path budget", "light_path_budget"),)
+
+
 def test_bench_refuses_an_unknown_setting_before_building_anything(tmp_path):
     out = tmp_path / "bench"
     r = subprocess.run([sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),

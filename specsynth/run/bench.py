@@ -9,10 +9,12 @@ the backend's own reference: relMSE on linear radiance, PSNR and SSIM on 8-bit s
 from __future__ import annotations
 
 import csv
+import importlib
 import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -56,9 +58,40 @@ class Row:
 LEVELS = ("low", "medium", "high")
 
 
+@dataclass(frozen=True)
+class BenchSettings:
+    """What `specsynth bench` tries on a backend beyond its quality levels. A backend declares it as
+    ``BENCH`` in an optional module ``bench`` of the package that holds its renderer (e.g.
+    ``specsynth_cycles.bench``): the bench's business, so not in the plugin record a build reads."""
+
+    # extra settings per quality level: (label suffix, option updates)
+    variants: tuple[tuple[str, dict[str, Any]], ...] = ()
+    # boolean options whose saving is measured by rendering the same views with and without: (label, option)
+    toggles: tuple[tuple[str, str], ...] = ()
+
+
+def bench_settings(plugin: BackendPlugin) -> BenchSettings:
+    """The backend's own ``BENCH``, or none beyond the levels when its package has no ``bench`` module."""
+    package = plugin.backend.partition(":")[0].rpartition(".")[0]
+    if not package:
+        return BenchSettings()
+    name = f"{package}.bench"
+    try:
+        module = importlib.import_module(name)
+    except ModuleNotFoundError as e:
+        if e.name == name:
+            return BenchSettings()
+        raise
+    found = getattr(module, "BENCH", None)
+    if not isinstance(found, BenchSettings):
+        raise PluginNotFound(f"{name}.BENCH of backend {plugin.name!r} is not a specsynth.run.bench.BenchSettings "
+                             f"(got {type(found).__name__})")
+    return found
+
+
 def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...] = LEVELS,
                  ladder: bool = False) -> list[Setting]:
-    """Each quality level plain and with each of the plugin's own bench variants, then a reference.
+    """Each quality level plain and with each of the backend's BENCH variants, then a reference.
     ``ladder``: also the level's light paths at 1, 2, 4, ... samples (fewer than its own) with
     denoising, where a denoising backend reaches the level's error for less (the calibration)."""
     out = []
@@ -66,7 +99,7 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
         out.append(Setting(plugin.name, f"{level}", level, {}))
         if plugin.calibrated.get(level):
             out.append(Setting(plugin.name, f"{level}+calibrated", level, dict(plugin.calibrated[level])))
-        for suffix, options in plugin.bench_variants:
+        for suffix, options in bench_settings(plugin).variants:
             out.append(Setting(plugin.name, f"{level}+{suffix}", level, dict(options)))
         if plugin.capabilities.sampling_noise:  # quality.control: error
             out.append(Setting(plugin.name, f"{level}+targeted", level, {"__control__": "error"}))
@@ -247,7 +280,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         level = spec.quality.paper_level
         savings += camera_savings(name, rows, level, cams, statistics.median(r.load for r in rows if r.backend == name), spec.cameras.per_arrangement)
         preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
-        for label, option in plugin.bench_toggles:
+        for label, option in bench_settings(plugin).toggles:
             savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, worker, preset, repeats))
         worker.close()
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)

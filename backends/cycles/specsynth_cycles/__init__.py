@@ -24,11 +24,6 @@ PLUGIN = BackendPlugin(
     cost=(1.4, 0.458),  # a bare VGA frame on 2 cores: 1.40 s + 0.458 s per sample (benchmarks/bench_cycles.py)
     checks="specsynth_cycles.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/cycles  (needs the bpy==5.0.1 wheel)",
-    bench_variants=(("denoise", {"denoise": True}),
-                    ("denoise-accurate", {"denoise": True, "denoise_prefilter": "accurate"}),
-                    ("denoise-fast", {"denoise": True, "denoise_prefilter": "fast", "denoise_quality": "balanced"}),
-                    ("adaptive", {"adaptive_threshold": 0.01})),
-    bench_toggles=(("light-path budget", "light_path_budget"),),
     # `specsynth bench specs/demo.yaml --scale 0.5 --views 2 --ref-factor 2 --levels medium,high --ladder`
     # (docs/quality.md): paper medium 28.64 dB, 1 spp + OIDN 31.50 dB in 0.72 s against 8.58 s;
     # paper high 35.12 dB in ~41 s, 4 spp + OIDN 35.27 dB in 1.10 s. Low: the paper's 1 spp is the cheapest.

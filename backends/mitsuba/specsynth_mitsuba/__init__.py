@@ -26,8 +26,6 @@ PLUGIN = BackendPlugin(
     cost=(0.11, 0.122),
     checks="specsynth_mitsuba.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
-    bench_variants=(("denoise", {"denoise": True}), ("independent", {"sampler": "independent"}),
-                    ("ldsampler", {"sampler": "ldsampler"})),
     # `specsynth bench specs/demo.yaml --scale 0.5 --views 2 --ref-factor 2 --levels medium,high --ladder`
     # (docs/quality.md): paper medium 25.05 dB in 1.92 s, 1 spp + OIDN 29.59 dB in 0.28 s; paper high
     # 32.42 dB in 13.9 s, 9 spp + OIDN 34.12 dB in 1.33 s (4 spp + OIDN: 29.1 dB, below 1 spp's 30.7).

@@ -1,0 +1,11 @@
+"""What `specsynth bench` tries on Cycles beyond the quality levels (read by specsynth.run.bench only)."""
+
+from specsynth.run.bench import BenchSettings
+
+BENCH = BenchSettings(
+    variants=(("denoise", {"denoise": True}),
+              ("denoise-accurate", {"denoise": True, "denoise_prefilter": "accurate"}),
+              ("denoise-fast", {"denoise": True, "denoise_prefilter": "fast", "denoise_quality": "balanced"}),
+              ("adaptive", {"adaptive_threshold": 0.01})),
+    toggles=(("light-path budget", "light_path_budget"),),
+)

@@ -1,0 +1,8 @@
+"""What `specsynth bench` tries on Mitsuba beyond the quality levels (read by specsynth.run.bench only)."""
+
+from specsynth.run.bench import BenchSettings
+
+BENCH = BenchSettings(
+    variants=(("denoise", {"denoise": True}), ("independent", {"sampler": "independent"}),
+              ("ldsampler", {"sampler": "ldsampler"})),
+)
