@@ -4,7 +4,7 @@ A synthetic renderer stands in for a path tracer here because the property teste
 an image ``mu + sigma / sqrt(samples) * N(0, 1)`` per pixel has exactly the variance the estimates
 assume, so their answers can be checked against the truth. The real renderers' estimates are
 measured against converged references by ``specsynth bench`` (docs/quality.md) and in
-tests/test_cycles.py / tests/test_mitsuba.py.
+backends/cycles/tests/test_cycles.py / backends/mitsuba/tests/test_mitsuba.py.
 """
 
 from __future__ import annotations
