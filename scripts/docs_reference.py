@@ -20,7 +20,7 @@ from pydantic import BaseModel
 from specsynth.cli import parser
 from specsynth.plan.compiler import stage_of_field
 from specsynth.plugins import installed_backend_plugins
-from specsynth.spec.models import DatasetSpec
+from specsynth.spec.models import DatasetSpec, Outputs, installed_outputs_model
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "reference"
@@ -66,7 +66,9 @@ def _models(annotation) -> list[type[BaseModel]]:
     stack = [annotation]
     while stack:
         a = stack.pop()
-        if isinstance(a, type) and issubclass(a, BaseModel):
+        if a is Outputs:  # with a switch per installed output, as specs are validated
+            out.append(installed_outputs_model())
+        elif isinstance(a, type) and issubclass(a, BaseModel):
             out.append(a)
         stack += list(typing.get_args(a))
     return out

@@ -333,6 +333,42 @@ def cmd_backends(args) -> int:
     return 0
 
 
+def output_rows() -> list[dict]:
+    """Every installed output: per-view products, then dataset writers; a broken one with its error."""
+    from .plugins import OUTPUT_GROUPS, output_fingerprint, output_plugins
+
+    rows = []
+    for kind in OUTPUT_GROUPS:
+        found, broken = output_plugins(kind)
+        for name in sorted({*found, *broken}):
+            if name in broken:
+                rows.append({"name": name, "kind": kind, "error": broken[name]})
+                continue
+            p = found[name]
+            switch = getattr(p, "switch", True)
+            rows.append({"name": name, "kind": kind, "fingerprint": output_fingerprint(p, kind),
+                         "default": ("on" if p.default else "off") if switch else "by its inputs",
+                         "needs": list(getattr(p, "needs", ())), "description": " ".join(p.description.split())})
+    return rows
+
+
+def cmd_outputs(args) -> int:
+    rows = output_rows()
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for kind, title in (("product", "per-view products (written by every render)"),
+                        ("writer", "dataset writers (written by the merge)")):
+        print(f"{title}; switch one with outputs.NAME: true|false")
+        for r in (r for r in rows if r["kind"] == kind):
+            if "error" in r:
+                print(f"  {r['name']:12s} BROKEN: {r['error']}")
+                continue
+            needs = f"; needs {', '.join(r['needs'])}" if r["needs"] else ""
+            print(f"  {r['name']:12s} {r['default']}{needs}: {r['description']}")
+    return 0
+
+
 def cmd_furniture(args) -> int:
     from .assets.library.furniture import catalogue
 
@@ -647,7 +683,7 @@ def _spec_commands(sub) -> None:
 
 
 def _library_commands(sub) -> None:
-    """What is installed: scenes, backends, furniture."""
+    """What is installed: scenes, backends, outputs, furniture."""
     p = sub.add_parser("scenes", help="list built-in scenes and their stages, preview one, or show a scene's stages")
     p.add_argument("action", nargs="?", choices=["list", "preview", "show"], default="list")
     p.add_argument("name", nargs="?", help="built-in scene name, or (show) a scene file")
@@ -673,6 +709,10 @@ def _library_commands(sub) -> None:
     p = sub.add_parser("backends", help="installed render backend plugins, their capabilities and options")
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_backends)
+
+    p = sub.add_parser("outputs", help="installed outputs: per-view products and dataset writers, each a spec switch")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_outputs)
 
     p = sub.add_parser("furniture", help="list the furniture library (ids for scene files' {furniture: ID} sources)")
     p.add_argument("--category", help="e.g. 'Living room', 'Kitchen', 'Office', 'Bedroom'")

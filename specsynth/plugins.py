@@ -1,4 +1,4 @@
-"""Plugins: render backends and executors, found through entry points (fsspec-style).
+"""Plugins: render backends, executors and outputs, found through entry points (fsspec-style).
 
 A backend is a distribution that registers a :class:`BackendPlugin` in the ``specsynth.backends``
 entry-point group. The plugin object is cheap to import (pydantic options and metadata only): the
@@ -7,6 +7,11 @@ versions, all without importing the renderer. The renderer class is imported onl
 happens, through :meth:`BackendPlugin.load_class`.
 
 The core names no backend: everything it needs to know about one is in its plugin object.
+
+Outputs are plugins too: per-view products (``specsynth.products``: a depth map, masks, another
+eye) and dataset writers (``specsynth.writers``: BOP, COCO, ...), each an object of
+:mod:`specsynth.output_api`. Their names are the spec's ``outputs.<name>`` switches; this module
+only finds them and reports what is missing (``output_switches``).
 """
 
 from __future__ import annotations
@@ -18,6 +23,9 @@ from typing import Any
 
 BACKEND_GROUP = "specsynth.backends"
 EXECUTOR_GROUP = "specsynth.executors"
+PRODUCT_GROUP = "specsynth.products"
+WRITER_GROUP = "specsynth.writers"
+OUTPUT_GROUPS = {"product": PRODUCT_GROUP, "writer": WRITER_GROUP}
 
 
 class PluginNotFound(RuntimeError):
@@ -228,3 +236,80 @@ def installed_backend_plugins() -> list[BackendPlugin]:
         except PluginNotFound:
             continue
     return out
+
+
+# ---------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True)
+class OutputSwitch:
+    """What the spec needs to know of one installed output: its ``outputs.<name>`` switch."""
+
+    name: str
+    kind: str  # "product" (written by every render job) or "writer" (a dataset format, by the merge)
+    default: bool
+    description: str
+    needs: tuple[str, ...] = ()  # outputs that must be on with it (a writer reading another's files)
+    switch: bool = True  # False: no switch; the product decides from the render's inputs (``active``)
+
+
+def output_plugins(kind: str) -> tuple[dict[str, Any], dict[str, str]]:
+    """The installed outputs of ``kind`` by name, and those whose entry point does not load (name
+    -> why, with what to reinstall): a broken plugin is reported where it is named, never fatal
+    to the others."""
+    group = OUTPUT_GROUPS[kind]
+    found: dict[str, Any] = {}
+    broken: dict[str, str] = {}
+    for ep in sorted(metadata.entry_points(group=group), key=lambda e: e.name):
+        if ep.name in found or ep.name in broken:
+            continue  # the first distribution on the path wins, as for imports
+        try:
+            obj = ep.load()
+        except (ImportError, AttributeError) as e:
+            dist = ep.dist.name if ep.dist is not None else f"the package that provides {ep.name!r}"
+            broken[ep.name] = f"{_kind(group)} {ep.name!r} cannot be imported ({e}); reinstall {dist}"
+            continue
+        if getattr(obj, "name", None) != ep.name:
+            broken[ep.name] = f"entry point {ep.name!r} of {group} gives an object named {getattr(obj, 'name', None)!r}"
+            continue
+        found[ep.name] = obj
+    return found, broken
+
+
+def output_switches() -> tuple[OutputSwitch, ...]:
+    """Every installed output, products then writers, each sorted by name."""
+    out = []
+    for kind in OUTPUT_GROUPS:
+        for name, obj in output_plugins(kind)[0].items():
+            out.append(OutputSwitch(name, kind, bool(obj.default), " ".join(str(obj.description).split()),
+                                    tuple(getattr(obj, "needs", ())), bool(getattr(obj, "switch", True))))
+    return tuple(out)
+
+
+def unknown_output(name: str) -> str:
+    """Why ``outputs.<name>`` is not a switch: a broken plugin (what to reinstall), or no such
+    output (the known ones, a close name, and what to install for a third-party one)."""
+    import difflib
+
+    for kind in OUTPUT_GROUPS:
+        broken = output_plugins(kind)[1]
+        if name in broken:
+            return broken[name]
+    known = sorted(s.name for s in output_switches() if s.switch)
+    if not known:
+        return ("no outputs are installed: specsynth's own entry points are missing (reinstall it: "
+                "pip install -e . in its repository)")
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    return (f"unknown output {name!r}: {hint}known are {', '.join(known)}; an output from another package "
+            f"needs that package installed (its entry point in {PRODUCT_GROUP} or {WRITER_GROUP})")
+
+
+def output_fingerprint(obj: Any, kind: str) -> str:
+    """An output's name, its distribution's version and revision: part of the keys it changes."""
+    dist = _plugin_distribution(OUTPUT_GROUPS[kind], obj.name)
+    parts = [f"{dist} {dist_version(dist)}"] if dist else []
+    revision = int(getattr(obj, "revision", 1))
+    if revision > 1:
+        parts.append(f"rev {revision}")
+    return f"{obj.name} ({'; '.join(parts)})" if parts else obj.name

@@ -237,14 +237,14 @@ def test_photo_background_folder_is_relative_to_the_spec(tmp_path):
 def test_render_jobs_store_the_rles_the_merge_would_encode(built):
     """The merge reads each view's visible-mask RLEs from its render job instead of decoding
     every mask PNG serially; they must be exactly what decoding the masks gives."""
-    from specsynth.outputs.coco import RLE_FILE, encode_rle, read_mask
+    from specsynth.outputs.masks import RLE_FILE, encode_rle, read_mask
 
     out, s = built
     dirs = [p.parent for p in (out / ".specsynth" / "store" / "render").rglob(RLE_FILE)]
     assert len(dirs) == s.images
     for d in dirs:
         rec = json.loads((d / "record.json").read_text())
-        assert json.loads((d / RLE_FILE).read_text()) == [encode_rle(read_mask(d / m)) for m in rec["mask_visib_files"]]
+        assert json.loads((d / RLE_FILE).read_text()) == [encode_rle(read_mask(d / m)) for m in rec["files"]["mask_visib"]]
 
 
 def test_timeline_covers_every_job_the_build_ran_and_only_those(spec_file, tmp_path):

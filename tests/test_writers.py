@@ -127,8 +127,8 @@ def _make_image(store_root: Path, index: int, rng: np.random.Generator, depth_sc
         arr=index // 2, cam=index % 2, index=index, scene="room", stage="table", backend="photo",
         backend_version="1.0", quality="low", seed=1000 + index, width=W, height=H, K=K,
         R_w2c=_rotation(rng).tolist(), t_w2c=rng.uniform(-1, 1, size=3).tolist(), depth_scale=scale,
-        instances=instances, rgb_file="rgb.jpg", depth_file="depth.png", mask_files=masks,
-        mask_visib_files=visib, render_seconds=float(rng.uniform(0.1, 2.0)),
+        instances=instances, files={"rgb": "rgb.jpg", "depth": "depth.png", "mask": masks, "mask_visib": visib},
+        render_seconds=float(rng.uniform(0.1, 2.0)),
     )
     return (rec, store), depth_m
 
@@ -334,7 +334,7 @@ def test_bop_layout_loads_like_the_toolkit(built, dataset):
             assert ei["bbox_visib"] == g.bbox_visib and ei["px_count_visib"] == g.px_count_visib
             for kind in ("mask", "mask_visib"):
                 m = iio.imread(cdir / kind / f"{im_id:06d}_{gt_id:06d}.png")
-                src = store / (rec.mask_files if kind == "mask" else rec.mask_visib_files)[gt_id]
+                src = store / rec.files[kind][gt_id]
                 assert np.array_equal(m, iio.imread(src))
         n_inst += len(gt)
     assert counts["bop_instances"] == n_inst and counts["bop_chunks"] == 3
@@ -406,7 +406,7 @@ def test_parquet_rows_match_scene_gt_and_duckdb_queries(built, dataset):
     rec, store = images[0]
     rle = first["mask_visib_rle"]
     m = mask_utils.decode({"counts": rle["counts"].encode(), "size": rle["size"]})
-    assert np.array_equal(m.astype(bool), iio.imread(store / rec.mask_visib_files[0]) > 0)
+    assert np.array_equal(m.astype(bool), iio.imread(store / rec.files["mask_visib"][0]) > 0)
 
 
 def test_coco_files_load_in_pycocotools(built, dataset):
@@ -424,7 +424,7 @@ def test_coco_files_load_in_pycocotools(built, dataset):
         assert len(anns) == len(visible)  # annotations follow gt order, empty ones left out
         for ann, gt_id in zip(anns, visible):
             g = rec.instances[gt_id]
-            vis = iio.imread(store / rec.mask_visib_files[gt_id]) > 0
+            vis = iio.imread(store / rec.files["mask_visib"][gt_id]) > 0
             assert np.array_equal(split.annToMask(ann).astype(bool), vis)
             assert ann["category_id"] == g.obj_id and ann["iscrowd"] == 0
             assert ann["bbox"] == [int(v) for v in mask_utils.toBbox(ann["segmentation"] | {"counts": ann["segmentation"]["counts"].encode()})]
@@ -525,7 +525,8 @@ def test_build_without_masks_gives_box_only_coco(dataset, tmp_path):
     from pycocotools.coco import COCO
 
     models, images, _ = dataset
-    bare = [(ImageRecord.from_json({**r.to_json(), "mask_files": [], "mask_visib_files": []}), s) for r, s in images]
+    bare = [(ImageRecord.from_json({**r.to_json(), "files": {"rgb": "rgb.jpg", "depth": "depth.png"}}), s)
+            for r, s in images]
     write_outputs(tmp_path, _spec(masks=False), bare, models)
     assert not list((tmp_path / "bop").rglob("mask*/*.png"))
     c = COCO(str(tmp_path / "coco" / "train_pbr.json"))

@@ -97,7 +97,7 @@ class InstanceGT:
 
 @dataclass
 class ImageRecord:
-    """A rendered image with its annotations; files are relative to the job's store folder."""
+    """A rendered image with its annotations and its files, which are relative to the job's store folder."""
 
     arr: int
     cam: int
@@ -113,23 +113,28 @@ class ImageRecord:
     K: list[list[float]]
     R_w2c: list[list[float]]
     t_w2c: list[float]  # metres
-    depth_scale: float
+    depth_scale: float  # the depth files' (value * depth_scale = mm)
     instances: list[InstanceGT]
-    rgb_file: str  # e.g. "rgb.jpg"
-    depth_file: str | None  # uint16 PNG, value * depth_scale = mm
-    mask_files: list[str]  # "mask_000000.png", ... in gt order (0/255 PNG)
-    mask_visib_files: list[str]
-    exr_file: str | None = None
-    normals_file: str | None = None  # float32 EXR, camera-space unit normals
-    nocs_file: str | None = None  # float32 EXR, NOCS in [0, 1]
-    albedo_file: str | None = None  # 8-bit sRGB PNG, unlit diffuse colour
-    depth_noisy_file: str | None = None  # uint16 PNG like depth_file: the RGB-D sensor model's depth
+    # By kind: "rgb" (always) and what each product wrote, e.g. "depth": "depth.png", "mask":
+    # ["mask_000000.png", ...] (one per instance, in gt order). See specsynth.output_api.
+    files: dict[str, Any]
     distortion: list[float] | None = None  # OpenCV [k1, k2, p1, p2, k3] the image was warped with
     eye: str | None = None  # "left" / "right" in a stereo build (the left camera is the view's)
     baseline: float | None = None  # metres between the eyes, along the left camera's +x
-    right_eye: dict[str, Any] | None = None  # the right eye's record (files under right/), on the left's
+    # Other images of the view by name (a stereo rig's "right"): their records, files under <name>/.
+    companions: dict[str, dict[str, Any]] = field(default_factory=dict)
     render_seconds: float = 0.0
     stats: dict[str, Any] = field(default_factory=dict)
+
+    def file(self, kind: str) -> str | None:
+        """The image's one file of ``kind``, None when it has none."""
+        name = self.files.get(kind)
+        return name if isinstance(name, str) else None
+
+    def instance_files(self, kind: str) -> list[str]:
+        """The image's per-instance files of ``kind`` in gt order ([] when it has none)."""
+        names = self.files.get(kind)
+        return list(names) if isinstance(names, list) else []
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

@@ -1,59 +1,54 @@
-"""Merge-step writers: BOP, Parquet and COCO from render records and their store files.
+"""The merge's dataset writers, and ``write_outputs``, which runs those the spec switches on.
 
-``write_outputs`` is the one entry point the build runner calls; the per-format functions are
-usable on their own. Worker-side per-view encoders live in :mod:`specsynth.outputs.images`.
+Writers are plugins (``specsynth.writers``: BOP, COCO, Parquet, YOLO here, any other package's
+alike; see :mod:`specsynth.output_api`), each a module that imports only the shared ones
+(``dataset.py``, ``masks.py``, ``images.py``). Worker-side encoders live in
+:mod:`specsynth.outputs.images`; the per-view products in :mod:`specsynth.products`.
 """
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Iterable, Sequence
 
 from ..assets.resolve import ObjectAsset
+from ..output_api import DatasetWriter, ImageEntry, Merge, in_order, products, writers
 from ..spec.models import DatasetSpec
-from .bop import write_bop
-from .coco import all_visible_rles, write_coco
-from .dataset import ImageEntry, sorted_images
-from .parquet import write_parquet
+from .dataset import parts
 
-__all__ = ["write_outputs", "write_bop", "write_coco", "write_parquet"]
+__all__ = ["write_outputs"]
 
 
 def write_outputs(
     out: Path, spec: DatasetSpec, images: Sequence[ImageEntry], models: Sequence[ObjectAsset],
     previous: Iterable[str] = (),
 ) -> dict[str, int]:
-    """Write every output the spec enables into ``out``; returns counts by name. A stereo build's
-    right eye is a dataset of its own beside the left: split ``<split>_right``, parquet ``*_right``.
-    ``previous``: the files the last build wrote (relative paths), of which those this spec no
-    longer writes are removed."""
-    _remove_stale(Path(out), spec, previous)
-    right = sorted_images(e for e in images if e[0].eye == "right")
-    counts = _write_eye(Path(out), spec, sorted_images(e for e in images if e[0].eye != "right"), models, spec.split, "")
-    if right:
-        for k, v in _write_eye(Path(out), spec, right, models, f"{spec.split}_right", "_right").items():
-            counts[k] = counts.get(k, 0) + v
-    else:  # an earlier stereo build's right eye must not outlive its spec
-        _remove_right_eye(Path(out), spec.split)
+    """Write every format the spec switches on into ``out``; counts by name. ``images``: the
+    views' records; another image of a view (a stereo right eye) is a split of its own beside
+    them (``<split>_right``, Parquet ``*_right``). ``previous``: the files the last build wrote
+    (relative paths), of which those no writer writes now are removed."""
+    found = writers()
+    enabled = frozenset(spec.outputs.selected("writer"))
+    kinds = frozenset({"rgb"}) | {k for p in products().values() for k in p.file_kinds()}
+    merge = Merge(Path(out), spec, parts(spec.split, images), tuple(models), enabled, kinds)
+    _remove_stale(merge, found, previous)
+    counts: dict[str, int] = {}
+    for part in merge.parts:
+        counts["images"] = counts.get("images", 0) + len(part.images)
+        counts["instances"] = counts.get("instances", 0) + sum(len(r.instances) for r, _ in part.images)
+    for writer in in_order(found, enabled):
+        counts |= writer.write(merge)
     return counts
 
 
-def _remove_stale(out: Path, spec: DatasetSpec, previous: Iterable[str]) -> None:
-    """A format turned off or a split renamed since the last build: its files go with it, as a
-    clean build of this spec would not have them (files the last build did not write stay)."""
-    o, splits = spec.outputs, {spec.split, f"{spec.split}_right"}
-
-    def kept(rel: str) -> bool:
-        parts = rel.split("/")
-        if parts[0] == "bop":
-            return o.bop and (len(parts) < 3 or parts[1] == "models" or parts[1] in splits)
-        if parts[0] == "coco":
-            return o.coco and parts[-1].removesuffix(".json") in splits
-        return parts[0] != "parquet" or o.parquet
-
+def _remove_stale(merge: Merge, found: dict[str, DatasetWriter], previous: Iterable[str]) -> None:
+    """A format switched off, a split renamed, a stereo rig removed since the last build: the files
+    of the last build that some writer owns and none writes now go, as a clean build of this spec
+    would not have them (files no writer owns, a user's, stay)."""
+    out = merge.out
     for rel in previous:
-        if kept(rel):
+        said = [_current(w, rel, merge) for w in found.values()]
+        if True in said or False not in said:
             continue
         (out / rel).unlink(missing_ok=True)
         folder = (out / rel).parent
@@ -62,27 +57,7 @@ def _remove_stale(out: Path, spec: DatasetSpec, previous: Iterable[str]) -> None
             folder = folder.parent
 
 
-def _remove_right_eye(out: Path, split: str) -> None:
-    shutil.rmtree(out / "bop" / f"{split}_right", ignore_errors=True)
-    for stale in [out / "coco" / f"{split}_right.json", *(out / "parquet").glob("*_right.parquet")]:
-        stale.unlink(missing_ok=True)
-
-
-def _write_eye(out: Path, spec: DatasetSpec, images, models, split: str, suffix: str) -> dict[str, int]:
-    o = spec.outputs
-    # Visible-mask RLEs feed three files; decode each mask PNG once.
-    rles = all_visible_rles(images) if (o.coco or o.parquet) else None
-    counts: dict[str, int] = {"images": len(images), "instances": sum(len(r.instances) for r, _ in images)}
-    if o.bop:
-        counts |= write_bop(
-            out, split, images, models, spec.intrinsics, o, coco=o.coco, rles=rles, dataset_name=spec.name,
-            meta=spec.metadata,
-        )
-    if o.parquet:
-        counts |= write_parquet(out, split, images, o.chunk_size, bop_layout=o.bop, rles=rles, suffix=suffix)
-    if o.coco:
-        counts |= write_coco(
-            out, split, images, models, o.chunk_size, bop_layout=o.bop, rles=rles, dataset_name=spec.name,
-            meta=spec.metadata,
-        )
-    return counts
+def _current(writer: DatasetWriter, rel: str, merge: Merge) -> bool | None:
+    """Whether ``writer`` writes ``rel`` now (None: not its file); a writer switched off writes none."""
+    owned = writer.owns(rel, merge)
+    return owned if owned is None or writer.name in merge.enabled else False

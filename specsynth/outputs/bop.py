@@ -10,6 +10,10 @@ Merge semantics, so that an interrupted or repeated merge is harmless:
 - a file whose bytes are already right is left untouched (same inode, same mtime);
 - image files and chunk folders of images no longer in the build are removed, but only names this
   writer would produce, so anything a user put next to them survives.
+
+Every file kind of a record lands in its own chunk subfolder (``<kind>/<im_id>.<ext>``, or
+``<kind>/<im_id>_<gt_id>.<ext>`` for one file per instance): a product registered by another
+package gets its folder with no change here.
 """
 
 from __future__ import annotations
@@ -18,14 +22,15 @@ import json
 import re
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
 from ..assets.meshio import MeshData, mesh_bytes, read_mesh
 from ..assets.resolve import ObjectAsset
 from ..model.records import ImageRecord
-from ..spec.models import Intrinsics, Metadata, Outputs
+from ..output_api import DatasetWriter, Merge
+from ..spec.models import Intrinsics, Outputs
 from .dataset import (
     ImageEntry,
     check_image,
@@ -38,29 +43,13 @@ from .dataset import (
     write_if_changed,
 )
 
-# Subfolders of a chunk that this writer owns, with the file-name patterns it may delete there.
-_IMAGE_NAME = re.compile(r"^\d{6}\.(jpg|png|exr)$")
-_MASK_NAME = re.compile(r"^\d{6}_\d{6}\.png$")
-MANAGED_DIRS: dict[str, re.Pattern] = {
-    "rgb": _IMAGE_NAME,
-    "depth": _IMAGE_NAME,
-    "mask": _MASK_NAME,
-    "mask_visib": _MASK_NAME,
-    "exr": _IMAGE_NAME,
-    "normals": _IMAGE_NAME,
-    "albedo": _IMAGE_NAME,
-    "depth_noisy": _IMAGE_NAME,
-    "nocs": _IMAGE_NAME,
-}
-CHUNK_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "scene_gt_coco.json")
+# What this writer may delete in a chunk's file-kind folders: names it would produce.
+_FILE_NAME = re.compile(r"^\d{6}(_\d{6})?\.[A-Za-z0-9]+$")
+CHUNK_JSONS = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json")
 _CHUNK_NAME = re.compile(r"^\d{6}$")
 _MODEL_NAME = re.compile(r"^obj_\d{6}\.\w+$")
 _TMP_NAME = re.compile(r"^\..+\.tmp$")
 _NOTHING = re.compile(r"(?!)")  # for folders where only temp files are ours to delete
-
-
-
-# --------------------------------------------------------------------------- ids and paths
 
 
 # --------------------------------------------------------------------------- JSON
@@ -147,23 +136,14 @@ def scene_gt_info_entry(rec: ImageRecord) -> list[dict[str, Any]]:
 
 
 def _chunk_files(rec: ImageRecord, store: Path, im_id: int) -> list[tuple[str, str, Path]]:
-    """(subfolder, file name, source) of every file of one image."""
-    files = [("rgb", f"{im_id:06d}{Path(rec.rgb_file).suffix.lower()}", store / rec.rgb_file)]
-    if rec.depth_file:
-        files.append(("depth", f"{im_id:06d}.png", store / rec.depth_file))
-    if rec.exr_file:
-        files.append(("exr", f"{im_id:06d}.exr", store / rec.exr_file))
-    for kind, name in (("normals", rec.normals_file), ("nocs", rec.nocs_file)):
-        if name:
-            files.append((kind, f"{im_id:06d}.exr", store / name))
-    if rec.albedo_file:
-        files.append(("albedo", f"{im_id:06d}.png", store / rec.albedo_file))
-    if rec.depth_noisy_file:
-        files.append(("depth_noisy", f"{im_id:06d}.png", store / rec.depth_noisy_file))
-    for gt_id, name in enumerate(rec.mask_files):
-        files.append(("mask", f"{im_id:06d}_{gt_id:06d}.png", store / name))
-    for gt_id, name in enumerate(rec.mask_visib_files):
-        files.append(("mask_visib", f"{im_id:06d}_{gt_id:06d}.png", store / name))
+    """(subfolder, file name, source) of every file of one image: its kind's folder, named by
+    image (and by instance for one file per instance)."""
+    files = []
+    for kind, names in sorted(rec.files.items()):
+        if isinstance(names, str):
+            files.append((kind, f"{im_id:06d}{Path(names).suffix.lower()}", store / names))
+        else:
+            files += [(kind, f"{im_id:06d}_{gt_id:06d}{Path(n).suffix.lower()}", store / n) for gt_id, n in enumerate(names)]
     return files
 
 
@@ -241,23 +221,13 @@ def write_bop(
     models: Sequence[ObjectAsset],
     intrinsics: Intrinsics,
     outputs: Outputs,
-    *,
-    coco: bool | None = None,
-    rles: dict[int, list] | None = None,
-    dataset_name: str = "specsynth",
-    meta: Metadata = Metadata(),
+    kinds: Iterable[str] = (),
 ) -> dict[str, int]:
-    """Write (or bring up to date) ``<out>/bop``; returns counts.
-
-    ``coco`` (default ``outputs.coco``) adds ``scene_gt_coco.json`` per chunk; ``rles`` are
-    precomputed visible-mask RLEs by image index (see :func:`coco.visible_rles`).
-    """
-    from . import coco as coco_mod  # coco imports this module's helpers
-
+    """Write (or bring up to date) ``<out>/bop``; returns counts. ``kinds``: file kinds whose chunk
+    folders this writer tidies besides those the images have (a kind no longer written leaves)."""
     out = Path(out)
     root = out / "bop"
     split_dir = root / split
-    with_coco = outputs.coco if coco is None else coco
     images = sorted_images(images)
     counts = {"bop_images": len(images), "bop_instances": 0, "bop_chunks": 0, "bop_written": 0, "bop_removed": 0}
 
@@ -271,49 +241,45 @@ def write_bop(
     for rec, store in images:
         check_image(rec)
         by_chunk[chunk_and_im_id(rec.index, outputs.chunk_size)[0]].append((rec, store))
-    categories = coco_mod.categories(models, dataset_name)
-
+    managed = sorted(set(kinds) | {k for rec, _ in images for k in rec.files})
     for chunk, entries in sorted(by_chunk.items()):
-        cdir = split_dir / f"{chunk:06d}"
-        keep: dict[str, set[str]] = {d: set() for d in MANAGED_DIRS}
-        scene_camera: dict[int, Any] = {}
-        scene_gt: dict[int, Any] = {}
-        scene_gt_info: dict[int, Any] = {}
-        for rec, store in entries:
-            im_id = chunk_and_im_id(rec.index, outputs.chunk_size)[1]
-            # Build the JSON entries before touching files: a corrupt record fails the merge early.
-            scene_camera[im_id] = scene_camera_entry(rec)
-            scene_gt[im_id] = scene_gt_entry(rec)
-            scene_gt_info[im_id] = scene_gt_info_entry(rec)
-            counts["bop_instances"] += len(rec.instances)
-            for sub, name, src in _chunk_files(rec, store, im_id):
-                counts["bop_written"] += place_file(src, cdir / sub / name)
-                keep[sub].add(name)
-
-        # Images first, JSON last: the JSON never names a file that is not in place yet.
-        jsons = {
-            "scene_camera.json": bop_json_bytes(scene_camera),
-            "scene_gt.json": bop_json_bytes(scene_gt),
-            "scene_gt_info.json": bop_json_bytes(scene_gt_info),
-        }
-        if with_coco:
-            doc = coco_mod.chunk_document(
-                entries, outputs.chunk_size, categories, rles, f"{dataset_name}_{split}", meta
-            )
-            jsons["scene_gt_coco.json"] = coco_mod.coco_json_bytes(doc)
-        for name, data in jsons.items():
-            counts["bop_written"] += write_if_changed(cdir / name, data)
-        for name in CHUNK_JSONS:
-            if name not in jsons and (cdir / name).exists():
-                (cdir / name).unlink()
-                counts["bop_removed"] += 1
-        for sub, pattern in MANAGED_DIRS.items():
-            counts["bop_removed"] += _remove_unexpected(cdir / sub, pattern, keep[sub])
-            _rmdir_if_empty(cdir / sub)
-        _remove_unexpected(cdir, _NOTHING, set())  # temp files of an interrupted JSON write
+        for k, v in _write_chunk(split_dir / f"{chunk:06d}", entries, outputs.chunk_size, managed).items():
+            counts[k] += v
         counts["bop_chunks"] += 1
+    counts["bop_removed"] += _remove_stale_chunks(split_dir, set(by_chunk), managed)
+    return counts
 
-    counts["bop_removed"] += _remove_stale_chunks(split_dir, set(by_chunk))
+
+def _write_chunk(cdir: Path, entries: list[ImageEntry], chunk_size: int, managed: list[str]) -> dict[str, int]:
+    """One chunk folder: every image's files, then its JSON, then what is no longer ours."""
+    counts = {"bop_instances": 0, "bop_written": 0, "bop_removed": 0}
+    keep: dict[str, set[str]] = {d: set() for d in managed}
+    scene_camera: dict[int, Any] = {}
+    scene_gt: dict[int, Any] = {}
+    scene_gt_info: dict[int, Any] = {}
+    for rec, store in entries:
+        im_id = chunk_and_im_id(rec.index, chunk_size)[1]
+        # Build the JSON entries before touching files: a corrupt record fails the merge early.
+        scene_camera[im_id] = scene_camera_entry(rec)
+        scene_gt[im_id] = scene_gt_entry(rec)
+        scene_gt_info[im_id] = scene_gt_info_entry(rec)
+        counts["bop_instances"] += len(rec.instances)
+        for sub, name, src in _chunk_files(rec, store, im_id):
+            counts["bop_written"] += place_file(src, cdir / sub / name)
+            keep[sub].add(name)
+
+    # Images first, JSON last: the JSON never names a file that is not in place yet.
+    jsons = {
+        "scene_camera.json": bop_json_bytes(scene_camera),
+        "scene_gt.json": bop_json_bytes(scene_gt),
+        "scene_gt_info.json": bop_json_bytes(scene_gt_info),
+    }
+    for name, data in jsons.items():
+        counts["bop_written"] += write_if_changed(cdir / name, data)
+    for sub in managed:
+        counts["bop_removed"] += _remove_unexpected(cdir / sub, _FILE_NAME, keep[sub])
+        _rmdir_if_empty(cdir / sub)
+    _remove_unexpected(cdir, _NOTHING, set())  # temp files of an interrupted JSON write
     return counts
 
 
@@ -324,15 +290,17 @@ def _rmdir_if_empty(folder: Path) -> None:
         pass  # missing or not empty: both fine
 
 
-def _remove_stale_chunks(split_dir: Path, live: set[int]) -> int:
+def _remove_stale_chunks(split_dir: Path, live: set[int], managed: list[str]) -> int:
+    """Chunk folders of images no longer built: this writer's files in them (another writer's
+    files, like COCO's, are its own to remove; the folder goes when the last one has)."""
     if not split_dir.is_dir():
         return 0
     removed = 0
     for cdir in sorted(split_dir.iterdir()):
         if not (cdir.is_dir() and _CHUNK_NAME.match(cdir.name)) or int(cdir.name) in live:
             continue
-        for sub, pattern in MANAGED_DIRS.items():
-            removed += _remove_unexpected(cdir / sub, pattern, set())
+        for sub in managed:
+            removed += _remove_unexpected(cdir / sub, _FILE_NAME, set())
             _rmdir_if_empty(cdir / sub)
         for name in CHUNK_JSONS:
             if (cdir / name).exists():
@@ -341,3 +309,31 @@ def _remove_stale_chunks(split_dir: Path, live: set[int]) -> int:
         _remove_unexpected(cdir, _NOTHING, set())
         _rmdir_if_empty(cdir)
     return removed
+
+
+class BopWriter(DatasetWriter):
+    name = "bop"
+    description = ("BOP: bop/camera.json, models/ (millimetres) and per split and chunk every file kind's "
+                   "folder, scene_camera.json, scene_gt.json, scene_gt_info.json (the layout bop_toolkit_lib reads).")
+    default = True
+
+    def write(self, merge: Merge) -> dict[str, int]:
+        counts: dict[str, int] = {}
+        spec = merge.spec
+        for part in merge.parts:
+            found = write_bop(merge.out, part.split, part.images, merge.models, spec.intrinsics, spec.outputs, merge.kinds)
+            for k, v in found.items():
+                counts[k] = v if k == "bop_models" else counts.get(k, 0) + v
+        return counts
+
+    def owns(self, rel: str, merge: Merge) -> bool | None:
+        parts = rel.split("/")
+        if parts[0] != "bop":
+            return None
+        if len(parts) == 2 or parts[1] == "models":
+            return True
+        ours = (len(parts) == 5 and _FILE_NAME.match(parts[4])) or (len(parts) == 4 and parts[3] in CHUNK_JSONS)
+        return (parts[1] in merge.splits) if ours else None
+
+
+WRITER = BopWriter()

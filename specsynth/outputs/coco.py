@@ -18,65 +18,21 @@ from the clock, so two builds of one spec are byte-identical.
 from __future__ import annotations
 
 import json
-import os
+import re
+from collections import defaultdict
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
-from PIL import Image
-from pycocotools import mask as mask_utils
-
 from ..assets.resolve import ObjectAsset
 from ..model.records import ImageRecord
+from ..output_api import DatasetWriter, Merge, Part
 from ..spec.models import Metadata
-from .dataset import ImageEntry, chunk_and_im_id, image_relpaths, plain, sorted_images, write_if_changed
+from .dataset import LAYOUT, ImageEntry, chunk_and_im_id, coco_box, file_paths, plain, sorted_images, write_if_changed
+from .masks import Rle, rle_area, visible_rles
 
 IGNORE_VISIB_FRACT = 0.1  # the toolkit's threshold for "ignore" ground truth
-
-Rle = dict[str, Any]  # {"counts": str, "size": [h, w]}
-
-
-def read_mask(path: Path) -> np.ndarray:
-    with Image.open(path) as im:
-        return np.asarray(im) > 0
-
-
-def encode_rle(mask: np.ndarray) -> Rle:
-    rle = mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
-    return {"counts": rle["counts"].decode("ascii"), "size": [int(s) for s in rle["size"]]}
-
-
-# Written by the render job next to its masks, so the serial merge does not decode every mask.
-RLE_FILE = "mask_visib_rle.json"
-
-
-def write_visible_rles(folder: Path, masks_visib: Sequence[np.ndarray]) -> None:
-    """Worker side: the RLEs of a view's visible masks, in gt order."""
-    (Path(folder) / RLE_FILE).write_text(json.dumps([encode_rle(m) for m in masks_visib]))
-
-
-def visible_rles(rec: ImageRecord, store: Path) -> list[Rle | None]:
-    """RLE of each instance's ``mask_visib`` in gt order; None when the build wrote no masks.
-    Read from the render job's RLE file, or encoded from the mask files (stores from before it)."""
-    if not rec.mask_visib_files:
-        return [None] * len(rec.instances)
-    cached = Path(store) / RLE_FILE
-    if cached.is_file():
-        return json.loads(cached.read_text())
-    return [encode_rle(read_mask(Path(store) / name)) for name in rec.mask_visib_files]
-
-
-def all_visible_rles(images: Sequence[ImageEntry]) -> dict[int, list[Rle | None]]:
-    """Read every visible mask once; BOP's COCO files, the split COCO file and Parquet share it."""
-    return {rec.index: visible_rles(rec, store) for rec, store in images}
-
-
-def coco_box(bbox_visib: Sequence[int]) -> list[int]:
-    """BOP box (w = xmax - xmin) -> COCO box (w = xmax - xmin + 1); an empty box stays as it is."""
-    x, y, w, h = (int(v) for v in bbox_visib)
-    if w < 0 or h < 0:
-        return [x, y, w, h]
-    return [x, y, w + 1, h + 1]
+CHUNK_FILE = "scene_gt_coco.json"  # one per BOP chunk, beside the BOP writer's JSON
+_CHUNK_NAME = re.compile(r"^\d{6}$")
 
 
 LICENSE_ID = 1  # the dataset's one licence; every image refers to it
@@ -123,7 +79,7 @@ def _annotations(
             "ignore": bool(g.visib_fract < IGNORE_VISIB_FRACT),
         }
         if rle is not None:
-            area = int(mask_utils.area({"counts": rle["counts"].encode("ascii"), "size": rle["size"]}))
+            area = rle_area(rle)
             if area < 1:
                 continue  # the toolkit drops instances with nothing visible
             ann["segmentation"] = rle
@@ -160,23 +116,18 @@ def _document(
     }
 
 
-def _rles_for(rec: ImageRecord, store: Path, rles: dict[int, list] | None) -> list[Rle | None]:
-    return rles[rec.index] if rles is not None and rec.index in rles else visible_rles(rec, store)
-
-
 def chunk_document(
-    entries: Sequence[ImageEntry],
+    entries: Sequence[tuple[ImageEntry, list[Rle | None]]],
     chunk_size: int,
     cats: list[dict[str, Any]],
-    rles: dict[int, list] | None,
     description: str,
     meta: Metadata,
 ) -> dict[str, Any]:
     """``scene_gt_coco.json`` of one chunk: image_id = im_id, file names relative to the chunk."""
     items = []
-    for rec, store in sorted_images(entries):
+    for (rec, _), rles in entries:
         im_id = chunk_and_im_id(rec.index, chunk_size)[1]
-        items.append((im_id, f"rgb/{im_id:06d}{Path(rec.rgb_file).suffix.lower()}", rec, _rles_for(rec, store, rles)))
+        items.append((im_id, f"rgb/{im_id:06d}{Path(rec.files['rgb']).suffix.lower()}", rec, rles))
     return _document(items, cats, description, meta)
 
 
@@ -184,31 +135,64 @@ def coco_json_bytes(doc: dict[str, Any]) -> bytes:
     return json.dumps(plain(doc), sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 
-def write_coco(
-    out: Path,
-    split: str,
-    images: Sequence[ImageEntry],
-    models: Sequence[ObjectAsset],
-    chunk_size: int,
-    *,
-    bop_layout: bool = True,
-    rles: dict[int, list] | None = None,
-    dataset_name: str = "specsynth",
-    meta: Metadata = Metadata(),
-) -> dict[str, int]:
-    """``<out>/coco/<split>.json`` for the whole split; image_id = the global image index.
-
-    File names point into ``bop/`` when it is written, otherwise at the store files.
-    """
-    out = Path(out)
-    path = out / "coco" / f"{split}.json"
-    items = []
-    for rec, store in sorted_images(images):
-        if bop_layout:
-            rgb = image_relpaths(split, rec, chunk_size)["rgb"]
-        else:
-            rgb = os.path.relpath(Path(store) / rec.rgb_file, out).replace(os.sep, "/")
-        items.append((rec.index, "../" + rgb, rec, _rles_for(rec, store, rles)))
-    doc = _document(items, categories(models, dataset_name), f"{dataset_name}_{split}", meta)
-    write_if_changed(path, coco_json_bytes(doc))
+def write_coco(merge: Merge, part: Part) -> dict[str, int]:
+    """``<out>/coco/<split>.json`` for the whole split (image_id = the global image index, file
+    names into ``bop/`` when it is written, else at the store files) and, beside BOP's, each
+    chunk's ``scene_gt_coco.json``."""
+    spec, out = merge.spec, Path(merge.out)
+    images = sorted_images(part.images)
+    rles = [visible_rles(rec, store) for rec, store in images]  # each image's RLE file read once
+    cats = categories(merge.models, spec.name)
+    items = [(rec.index, "../" + file_paths(merge, part.split, rec, store)["rgb"], rec, r)
+             for (rec, store), r in zip(images, rles)]
+    doc = _document(items, cats, f"{spec.name}_{part.split}", spec.metadata)
+    write_if_changed(out / "coco" / f"{part.split}.json", coco_json_bytes(doc))
+    if LAYOUT in merge.enabled:
+        _write_chunk_files(out / "bop" / part.split, list(zip(images, rles)), spec.outputs.chunk_size, cats,
+                           f"{spec.name}_{part.split}", spec.metadata)
     return {"coco_images": len(doc["images"]), "coco_annotations": len(doc["annotations"])}
+
+
+def _write_chunk_files(split_dir: Path, entries: list, chunk_size: int, cats: list, description: str,
+                       meta: Metadata) -> None:
+    """Each chunk's document; those of chunks no longer built are removed (with their folder
+    when nothing else is left in it)."""
+    by_chunk: dict[int, list] = defaultdict(list)
+    for (rec, store), rles in entries:
+        by_chunk[chunk_and_im_id(rec.index, chunk_size)[0]].append(((rec, store), rles))
+    for chunk, items in sorted(by_chunk.items()):
+        write_if_changed(split_dir / f"{chunk:06d}" / CHUNK_FILE,
+                         coco_json_bytes(chunk_document(items, chunk_size, cats, description, meta)))
+    stale = [d for d in (sorted(split_dir.iterdir()) if split_dir.is_dir() else [])
+             if d.is_dir() and _CHUNK_NAME.match(d.name) and int(d.name) not in by_chunk]
+    for cdir in stale:
+        (cdir / CHUNK_FILE).unlink(missing_ok=True)
+        try:
+            cdir.rmdir()
+        except OSError:
+            pass  # something else is left in it
+
+
+class CocoWriter(DatasetWriter):
+    name = "coco"
+    description = ("COCO instance annotations: coco/<split>.json and, with BOP, each chunk's scene_gt_coco.json "
+                   "(visible masks as RLE, COCO's box convention).")
+    default = True
+
+    def write(self, merge: Merge) -> dict[str, int]:
+        counts: dict[str, int] = {}
+        for part in merge.parts:
+            for k, v in write_coco(merge, part).items():
+                counts[k] = counts.get(k, 0) + v
+        return counts
+
+    def owns(self, rel: str, merge: Merge) -> bool | None:
+        parts = rel.split("/")
+        if len(parts) == 2 and parts[0] == "coco" and parts[1].endswith(".json"):
+            return parts[1].removesuffix(".json") in merge.splits
+        if len(parts) == 4 and parts[0] == "bop" and parts[3] == CHUNK_FILE:
+            return LAYOUT in merge.enabled and parts[1] in merge.splits
+        return None
+
+
+WRITER = CocoWriter()

@@ -1,7 +1,8 @@
 """What every dataset writer shares: the image listing (records in index order, their chunk ids and
-relative paths), BOP-unit conversions, and the two ways a file lands in ``--out`` (atomic write of
-bytes, independent copy of a store file). BOP, COCO, Parquet, YOLO and the attribution file import
-this module; none imports another writer's privates.
+relative paths, a view's other images as parts of their own), BOP-unit and box conversions, and the
+two ways a file lands in ``--out`` (atomic write of bytes, independent copy of a store file). BOP,
+COCO, Parquet, YOLO and the attribution file import this module; none imports another writer
+(an import-linter contract).
 """
 
 from __future__ import annotations
@@ -16,8 +17,11 @@ import numpy as np
 from ..atomic import atomic_write_bytes, atomic_write_via
 from ..model.conventions import m_to_mm
 from ..model.records import ImageRecord
+from ..output_api import ImageEntry, Merge, Part
 
-ImageEntry = tuple[ImageRecord, Path]  # record + the store folder holding its files
+# The writer whose layout (bop/<split>/<chunk>/<kind>/) the other formats' file names point into
+# when it is on; without it they point at the store's files.
+LAYOUT = "bop"
 
 # A rotation further than this from orthonormal is a corrupt record, not float noise.
 ORTHONORMAL_TOL = 1e-5
@@ -27,19 +31,43 @@ def chunk_and_im_id(index: int, chunk_size: int) -> tuple[int, int]:
     return index // chunk_size, index % chunk_size
 
 
-def image_relpaths(split: str, rec: ImageRecord, chunk_size: int) -> dict[str, str | None]:
-    """Paths (relative to ``<out>``) of an image's files in the BOP layout."""
+def image_relpaths(split: str, rec: ImageRecord, chunk_size: int) -> dict[str, str]:
+    """Paths (relative to ``<out>``) of an image's one-per-image files in the BOP layout, by kind:
+    ``bop/<split>/<chunk>/<kind>/<im_id><suffix>``."""
     chunk, im_id = chunk_and_im_id(rec.index, chunk_size)
     base = f"bop/{split}/{chunk:06d}"
-    return {
-        "rgb": f"{base}/rgb/{im_id:06d}{Path(rec.rgb_file).suffix.lower()}",
-        "depth": f"{base}/depth/{im_id:06d}.png" if rec.depth_file else None,
-        "exr": f"{base}/exr/{im_id:06d}.exr" if rec.exr_file else None,
-        "normals": f"{base}/normals/{im_id:06d}.exr" if rec.normals_file else None,
-        "nocs": f"{base}/nocs/{im_id:06d}.exr" if rec.nocs_file else None,
-        "depth_noisy": f"{base}/depth_noisy/{im_id:06d}.png" if rec.depth_noisy_file else None,
-        "albedo": f"{base}/albedo/{im_id:06d}.png" if rec.albedo_file else None,
-    }
+    return {kind: f"{base}/{kind}/{im_id:06d}{Path(name).suffix.lower()}"
+            for kind, name in sorted(rec.files.items()) if isinstance(name, str)}
+
+
+def file_paths(merge: Merge, split: str, rec: ImageRecord, store: Path) -> dict[str, str]:
+    """An image's one-per-image files by kind, relative to ``<out>``: in the BOP layout when that
+    writer is on, else the store's own files."""
+    if LAYOUT in merge.enabled:
+        return image_relpaths(split, rec, merge.spec.outputs.chunk_size)
+    return {kind: os.path.relpath(Path(store) / name, merge.out).replace(os.sep, "/")
+            for kind, name in sorted(rec.files.items()) if isinstance(name, str)}
+
+
+def parts(split: str, images: Iterable[ImageEntry]) -> tuple[Part, ...]:
+    """The views' images as split ``split``, and each other image of a view (``companions``: a
+    stereo rig's right eye) as split ``<split>_<name>``, its files under ``<store>/<name>``."""
+    own = sorted_images(images)
+    others: dict[str, list[ImageEntry]] = {}
+    for rec, store in own:
+        for name, sub in rec.companions.items():
+            others.setdefault(name, []).append((ImageRecord.from_json(sub), Path(store) / name))
+    return (Part(split, "", tuple(own)),
+            *(Part(f"{split}_{name}", f"_{name}", tuple(sorted_images(others[name]))) for name in sorted(others)))
+
+
+def coco_box(bbox_visib: Sequence[int]) -> list[int]:
+    """BOP box (w = xmax - xmin) -> COCO box (w = xmax - xmin + 1); an empty box stays as it is.
+    COCO, YOLO and whoever reads COCO's convention share it."""
+    x, y, w, h = (int(v) for v in bbox_visib)
+    if w < 0 or h < 0:
+        return [x, y, w, h]
+    return [x, y, w + 1, h + 1]
 
 
 def plain(x: Any) -> Any:
@@ -127,10 +155,11 @@ def vec_mm(t: Sequence[float], what: str) -> list[float]:
 
 def check_image(rec: ImageRecord) -> None:
     n = len(rec.instances)
-    if rec.mask_files and len(rec.mask_files) != n:
-        raise ValueError(f"image {rec.index}: {len(rec.mask_files)} mask files for {n} instances")
-    if rec.mask_visib_files and len(rec.mask_visib_files) != n:
-        raise ValueError(f"image {rec.index}: {len(rec.mask_visib_files)} mask_visib files for {n} instances")
+    if not rec.file("rgb"):
+        raise ValueError(f"image {rec.index}: no rgb file")
+    for kind, names in sorted(rec.files.items()):
+        if isinstance(names, list) and names and len(names) != n:
+            raise ValueError(f"image {rec.index}: {len(names)} {kind} files for {n} instances")
     if np.asarray(rec.K).shape != (3, 3):
         raise ValueError(f"image {rec.index}: K must be 3x3")
 

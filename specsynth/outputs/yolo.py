@@ -32,8 +32,7 @@ from typing import Sequence
 import yaml
 
 from ..files import UnsafeOutput, refuse_links_out
-from .coco import coco_box
-from .dataset import place_file, write_if_changed
+from .dataset import coco_box, place_file, write_if_changed
 from .qa import BopImage, list_images
 
 DEFAULT_MIN_VISIB = 0.1  # the COCO writer's "ignore" threshold: below it a box teaches noise

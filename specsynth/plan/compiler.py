@@ -23,7 +23,8 @@ from ..assets.resolve import (
     file_digest,
     object_fingerprints,
 )
-from ..plugins import backend_plugin, dist_version
+from ..output_api import active_products
+from ..plugins import backend_plugin, dist_version, output_fingerprint
 from ..scenes import FIXED_ROOMS, PROCEDURAL, declares_stages, generated_name, scene_fingerprint, stage_table
 
 GENERATED = PROCEDURAL + FIXED_ROOMS
@@ -228,6 +229,12 @@ class JobGraph:
         }
 
 
+def product_fingerprints(inputs) -> str:
+    """The products a render writes (those a switch turns on and those other inputs do, like a
+    stereo rig's right eye) with their packages' versions: upgrading one re-renders."""
+    return "; ".join(output_fingerprint(p, "product") for p in active_products(inputs))
+
+
 def principal_point_note(intr) -> str | None:
     """A principal point outside the image (width and height changed without the rest of the
     intrinsics) points every camera away from its object: every view is then rejected."""
@@ -307,7 +314,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     inputs = BuildInputs.of(spec)
     backend = backend_fingerprint(spec.backend.name)
     extra = {"arrange": dict(asset_hashes), "view": {"annotator": f"pyrender {dist_version('pyrender')}"},
-             "render": {"backend": backend, **_input_folders(spec, loaded)}}
+             "render": {"backend": backend, "products": product_fingerprints(inputs.render),
+                        **_input_folders(spec, loaded)}}
     # A stage's key: the digest of its whole inputs model, and what it reads besides the spec.
     stage_digests = {s: keys.stage_digest(s, {"inputs": keys.digest(getattr(inputs, s).model_dump(mode="json")),
                                               **extra[s]}) for s in STAGES}

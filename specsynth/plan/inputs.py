@@ -30,6 +30,7 @@ from ..spec.models import (
     Sensor,
     Stereo,
     Visibility,
+    installed_outputs_model,
 )
 
 
@@ -145,18 +146,14 @@ class ViewInputs(StageInputs):
 
 
 class RenderedFiles(Cut):
-    """The output switches that decide which files a render writes and their bytes (the dataset
-    formats, written by the merge, are not among them)."""
+    """The output settings that decide which files a render writes and their bytes: the image's
+    format and the per-view products switched on (the dataset formats, written by the merge, are
+    not among them)."""
 
     image_format: Annotated[Literal["jpg", "png"], From("image_format")]
     jpeg_quality: Annotated[int, From("jpeg_quality")]
-    depth: Annotated[bool, From("depth")]
     depth_scale: Annotated[float | Literal["auto"], From("depth_scale")]
-    masks: Annotated[bool, From("masks")]
-    exr: Annotated[bool, From("exr")]
-    normals: Annotated[bool, From("normals")]
-    nocs: Annotated[bool, From("nocs")]
-    albedo: Annotated[bool, From("albedo")]
+    products: Annotated[tuple[str, ...], From("products")]
 
 
 class RenderInputs(StageInputs):
@@ -190,11 +187,10 @@ WRITTEN_ONLY = {
     "name": "the dataset's name, in the files the merge writes",
     "split": "the BOP split's folder name, chosen by the merge",
     "metadata": "COCO info and dataset cards, written by the merge",
-    "outputs.bop": "whether the merge writes BOP",
-    "outputs.parquet": "whether the merge writes Parquet",
-    "outputs.coco": "whether the merge writes COCO",
     "outputs.chunk_size": "how the merge groups images into BOP chunk folders",
 }
+# Besides these, every ``outputs.<name>`` switch of a dataset writer (bop, coco, ...) is read by no
+# job: the merge runs the writers. A per-view product's switch is the renders' (``products``).
 
 
 class BuildInputs(BaseModel):
@@ -213,7 +209,12 @@ class BuildInputs(BaseModel):
 
 def stage_of_field(dotted: str) -> str | None:
     """The first stage whose jobs read a spec field (every later stage re-runs with it); None for
-    fields no job reads (``PLANNED``, ``WRITTEN_ONLY``)."""
+    fields no job reads (``PLANNED``, ``WRITTEN_ONLY``, a dataset writer's switch)."""
+    head, _, name = dotted.partition(".")
+    if head == "outputs":
+        switch = installed_outputs_model().registered.get(name)
+        if switch is not None:
+            return "render" if switch.kind == "product" else None
     for stage, model in STAGE_INPUTS.items():
         for _, path in model.spec_paths():
             if dotted == path or dotted.startswith(path + ".") or path.startswith(dotted + "."):

@@ -18,8 +18,10 @@ from typing import Any
 # neighbourhood (physics.collider_region). arrange 3: settling judged on mean speed over the hold
 # window (physics._stays_calm), so jittering piles stop before max_time. render 3: a calibrated
 # level with denoising turned off renders the paper preset's samples (plugins.options_for). arrange 4:
-# collision hulls of at most 1024 support points (physics.HULL_DIRECTIONS).
-STAGE_VERSIONS = {"arrange": 4, "view": 2, "render": 3}
+# collision hulls of at most 1024 support points (physics.HULL_DIRECTIONS). render 4: files recorded by
+# kind (ImageRecord.files) and written by registered products: a render job of an earlier version is
+# run again, never read.
+STAGE_VERSIONS = {"arrange": 4, "view": 2, "render": 4}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 

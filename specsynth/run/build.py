@@ -476,10 +476,7 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
             summary.objects_redropped += arec["redropped"]
         for r in renders:
             if store.has("render", r.key):
-                rec, path = ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)
-                images.append((rec, path))
-                if rec.right_eye is not None:  # a stereo pair: the right eye's files are under right/
-                    images.append((ImageRecord.from_json(rec.right_eye), Path(path) / "right"))
+                images.append((ImageRecord.from_json(store.load("render", r.key)), store.path("render", r.key)))
                 credits += arec.get("credits", [])
     if (summary.failures or not images) and (out / COMPLETE).is_file():
         summary.kept_previous = True  # a failed or empty rebuild must not replace the last good dataset
@@ -487,14 +484,16 @@ def _merge(graph: JobGraph, out: Path, store: Store, pipe: _Pipeline, summary: B
         return
     (out / COMPLETE).unlink(missing_ok=True)  # until the last file is in place
     (out / KEPT_FAILURES).unlink(missing_ok=True)
-    summary.images = len(images)
-    summary.instances = sum(len(im.instances) for im, _ in images)
-    _account_savings(summary, images, pipe.cached_render)
     from ..outputs import write_outputs
     from ..outputs.attribution import write_attribution
+    from ..outputs.dataset import parts
     from .verify import read_index, write_index
 
-    write_outputs(out, graph.spec, images, dataset_models(graph, images), previous=read_index(out))
+    every = [e for part in parts(graph.spec.split, images) for e in part.images]  # a stereo pair's eyes: two images
+    summary.images = len(every)
+    summary.instances = sum(len(im.instances) for im, _ in every)
+    _account_savings(summary, every, pipe.cached_render)
+    write_outputs(out, graph.spec, images, dataset_models(graph, every), previous=read_index(out))
     write_attribution(out, credits, graph.spec.name)
     write_manifest(graph, out, pipe.arr_jobs)
     write_json(out / "failures.json", summary.failures)

@@ -1,26 +1,27 @@
-"""The render step: per accepted view, render (both eyes for a stereo rig), annotate, apply lens and
-sensor, write every file of the image into the store."""
+"""The render step: per accepted view, render, annotate, apply lens and sensor, write the colour
+image and every active product's files into the store (a product may add another image of the
+view: a stereo rig's right eye is one)."""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
-from ..assets.resolve import ObjectAsset
 from ..model import lens
 from ..model.colour import check_finite, linear_to_srgb8
 from ..model.error import ErrorTarget, render_to_target
 from ..model.ir import RenderResult, RenderScene
 from ..model.records import ArrangementRecord, ImageRecord, ViewRecord
+from ..output_api import ViewProduct, active_products
 from ..plan import seeds
 from ..plan.compiler import Job
-from ..plan.inputs import RenderedFiles, RenderInputs
+from ..plan.inputs import RenderInputs
 from ..plugins import backend_plugin
-from ..views.sensor import jpeg_quality, sensor_depth, sensor_rgb
+from ..views.sensor import jpeg_quality, sensor_rgb
 from .worker import Worker
 
 
@@ -35,21 +36,16 @@ def run_renders(w: Worker, inp: RenderInputs, arrange_key: str, pairs: list[tupl
     occluders = "scene" if w.draws_scene else "objects"
     preset = inp.quality.resolved()
     ctx = _Render(inp, arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds,
-                  w.assets_by_id(arr), error_target(inp))
+                  w.assets_by_id(arr), error_target(inp), tuple(active_products(inp)))
     out = []
     for view_job, job in pairs:
         if w.store.has("render", job.key):  # finished before a retry
             continue
         view = ViewRecord.from_json(w.store.load("view", view_job.key))
         wd = w.store.begin()
-        rec = render_eye(w, wd, job, view, view.t_w2c, ctx, load_phase)
-        stereo = inp.stereo
-        if stereo is not None:  # the right eye: the rig moved by the baseline along the camera's x
-            t_right = (np.asarray(view.t_w2c, np.float64) - [stereo.baseline, 0.0, 0.0]).tolist()
-            (wd / "right").mkdir()
-            right = render_eye(w, wd / "right", job, view, t_right, ctx, 0.0)
-            rec = replace(rec, eye="left", baseline=stereo.baseline,
-                          right_eye=replace(right, eye="right", baseline=stereo.baseline).to_json())
+        rec, image = render_eye(w, wd, job, view, view.t_w2c, ctx, load_phase)
+        for product in ctx.products:  # once per view: a product adding another image links it here
+            rec = product.finish(rec, image)
         t5 = time.perf_counter()
         w.store.commit("render", job.key, wd, rec.to_json())
         out.append({"id": job.id, "seconds": rec.render_seconds,
@@ -58,9 +54,11 @@ def run_renders(w: Worker, inp: RenderInputs, arrange_key: str, pairs: list[tupl
     return out
 
 
-def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Render, load_phase: float) -> ImageRecord:
+def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Render,
+               load_phase: float) -> tuple[ImageRecord, _Image]:
     """One camera's image of the arrangement, its files written into ``wd``: render, annotate,
-    lens and sensor, outputs; -> its record (both eyes of a stereo rig share the job's seed)."""
+    lens and sensor, products; -> its record and the image the products saw (every image of a
+    view shares the job's seed)."""
     inp, warp = ctx.inp, w.lens_warp()
     cam = w.camera(view.R_w2c, t_w2c, ctx.origin)
     cam_r = lens.render_camera(cam, warp) if warp else cam
@@ -80,7 +78,17 @@ def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Ren
     else:
         ann = ctx.annot.annotate(cam, inp.visibility_delta, ctx.occluders)
     t3 = time.perf_counter()
-    files = write_image(w, wd, job, res, ann, cam, cam_r, ctx)
+
+    def albedo() -> np.ndarray:  # through a lens, drawn like the colour: pinhole, then warped
+        albedo8 = w.albedo(ctx.arrange_key, ctx.scene).render(cam_r)
+        return lens.remap_nearest(albedo8, warp) if warp else albedo8
+
+    def other_eye(t: Any, folder: str) -> ImageRecord:
+        (wd / folder).mkdir()
+        return render_eye(w, wd / folder, job, view, t, ctx, 0.0)[0]
+
+    image = _Image(wd, inp, cam, cam_r, res, ann, ctx.by_id, warp.rays if warp else None, job.id, albedo, other_eye)
+    files = write_image(image, ctx.products)
     stats = dict(res.stats)
     stats["load_seconds"] = ctx.load_seconds
     stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,
@@ -89,81 +97,85 @@ def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Ren
         arr=job.arr, cam=job.cam, index=view.index, scene=ctx.arr.scene, stage=ctx.arr.stage,
         backend=inp.backend.name, backend_version=ctx.backend.version(), quality=inp.quality.level,
         seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
-        R_w2c=view.R_w2c, t_w2c=list(t_w2c), instances=ann.instances, render_seconds=seconds, stats=stats,
-        **files, distortion=list(inp.intrinsics.distortion) if warp else None,
-    )
+        R_w2c=view.R_w2c, t_w2c=list(t_w2c), depth_scale=image.recorded_depth_scale(), instances=ann.instances,
+        files=files, distortion=list(inp.intrinsics.distortion) if warp else None, render_seconds=seconds, stats=stats,
+    ), image
 
 
-def write_image(w: Worker, wd: Path, job: Job, res, ann, cam, cam_r, ctx: _Render) -> dict[str, Any]:
-    """Every file of one image into the store folder ``wd`` (sensor effects applied to the colour
-    image, each from its own seeded stream) -> the record's file fields and depth scale."""
-    from ..outputs.coco import write_visible_rles
-    from ..outputs.images import encode_depth, write_exr, write_jpg, write_mask, write_png
+def write_image(image: _Image, products: tuple[ViewProduct, ...]) -> dict[str, Any]:
+    """Every file of one image into its store folder: the colour image through the sensor, then
+    each product's -> the record's files by kind."""
+    files: dict[str, Any] = {"rgb": write_rgb(image)}
+    for product in products:
+        found = product.write(image)
+        taken = sorted(set(found) & set(files))
+        if taken:
+            raise ValueError(f"product {product.name!r} writes files of kind {taken[0]!r}, which another output writes")
+        files.update(found)
+    return files
 
-    inp, warp = ctx.inp, w.lens_warp()
-    ext = inp.outputs.image_format
-    rgb_file = f"rgb.{ext}"
-    rng_rgb, rng_jpeg, rng_depth = (np.random.default_rng(ss) for ss in np.random.SeedSequence(
-        seeds.job_seed(inp.arrange.seed, f"{job.id}/sensor")).spawn(3))
-    albedo8 = None
-    if inp.outputs.albedo or inp.sensor.auto_white_balance:
-        albedo8 = w.albedo(ctx.arrange_key, ctx.scene).render(cam_r)
-        albedo8 = lens.remap_nearest(albedo8, warp) if warp else albedo8
-    rgb = sensor_rgb(res.linear, res.rgb, inp.sensor, rng_rgb, albedo8)
-    if ext == "jpg":
-        write_jpg(wd / rgb_file, rgb, jpeg_quality(inp.sensor, inp.outputs.jpeg_quality, rng_jpeg))
+
+def write_rgb(image: _Image) -> str:
+    """The colour image: the sensor's response (exposure, white balance, tone, noise, blur; each
+    from its own seeded stream) encoded as the spec asks."""
+    from ..outputs.images import write_jpg, write_png
+
+    inp = image.inputs
+    name = f"rgb.{inp.outputs.image_format}"
+    # Three streams of the image's sensor seed: colour, JPEG quality, and the depth sensor's.
+    rng_rgb, rng_jpeg, _ = (np.random.default_rng(ss) for ss in np.random.SeedSequence(image.seed("sensor")).spawn(3))
+    albedo8 = image.albedo() if inp.sensor.auto_white_balance else None
+    rgb = sensor_rgb(image.result.linear, image.result.rgb, inp.sensor, rng_rgb, albedo8)
+    if inp.outputs.image_format == "jpg":
+        write_jpg(image.folder / name, rgb, jpeg_quality(inp.sensor, inp.outputs.jpeg_quality, rng_jpeg))
     else:
-        write_png(wd / rgb_file, rgb)
-    depth_file, scale = None, inp.outputs.depth_scale
-    if inp.outputs.depth:
-        depth16, scale = encode_depth(ann.depth, inp.outputs.depth_scale)
-        depth_file = "depth.png"
-        write_png(wd / depth_file, depth16)
-    if scale == "auto":
-        scale = 1.0
-    depth_noisy_file = None
-    if inp.outputs.depth and inp.sensor.depth is not None:
-        depth_noisy_file = "depth_noisy.png"
-        write_png(wd / depth_noisy_file, encode_depth(sensor_depth(ann.depth, inp.sensor.depth, rng_depth), scale)[0])
-    masks, masks_visib = [], []
-    if inp.outputs.masks:
-        for gt, (m, mv) in enumerate(zip(ann.masks, ann.masks_visib)):
-            masks.append(f"mask_{gt:06d}.png")
-            masks_visib.append(f"mask_visib_{gt:06d}.png")
-            write_mask(wd / masks[-1], m)
-            write_mask(wd / masks_visib[-1], mv)
-        write_visible_rles(wd, ann.masks_visib)
-    exr_file = None
-    if inp.outputs.exr and res.linear is not None:
-        exr_file = "rgb.exr"
-        write_exr(wd / exr_file, res.linear)
-    normals_file, nocs_file = geometry_maps(w, inp.outputs, wd, cam, ann, ctx.by_id)
-    albedo_file = None
-    if inp.outputs.albedo:
-        albedo_file = "albedo.png"
-        write_png(wd / albedo_file, albedo8)
-    return dict(rgb_file=rgb_file, depth_file=depth_file, depth_scale=float(scale), mask_files=masks,
-                mask_visib_files=masks_visib, exr_file=exr_file, normals_file=normals_file, nocs_file=nocs_file,
-                depth_noisy_file=depth_noisy_file, albedo_file=albedo_file)
+        write_png(image.folder / name, rgb)
+    return name
 
 
-def geometry_maps(w: Worker, out: RenderedFiles, wd: Path, cam, ann, by_id: dict[int, ObjectAsset]) -> tuple[str | None, str | None]:
-    """normals.exr and nocs.exr from the annotation's depth, when the spec asks for them."""
-    from ..annotate.maps import nocs_map, normals_from_depth
-    from ..outputs.images import write_exr
+@dataclass
+class _Image:
+    """One image as the products see it (``output_api.View``): what is drawn only when a product
+    asks (the albedo, the encoded depth) is drawn once and kept for the others."""
 
-    warp = w.lens_warp()
-    rays = warp.rays if warp else None  # through a lens, each pixel's own ray instead of K
-    normals_file = nocs_file = None
-    if out.normals:
-        normals_file = "normals.exr"
-        write_exr(wd / normals_file, normals_from_depth(ann.depth, cam.K_array, rays))
-    if out.nocs:
-        diagonals = [float(np.linalg.norm(by_id[g.obj_id].extents)) for g in ann.instances]
-        poses = [(g.R_m2c, g.t_m2c) for g in ann.instances]
-        nocs_file = "nocs.exr"
-        write_exr(wd / nocs_file, nocs_map(ann.depth, cam.K_array, ann.masks_visib, poses, diagonals, rays))
-    return normals_file, nocs_file
+    folder: Path
+    inputs: RenderInputs
+    camera: Any
+    render_camera: Any
+    result: RenderResult
+    annotation: Any
+    assets: dict
+    rays: np.ndarray | None
+    job_id: str
+    draw_albedo: Callable[[], np.ndarray]
+    other_eye: Callable[[Any, str], ImageRecord]
+    _albedo: np.ndarray | None = field(default=None, repr=False)
+    _depth: tuple[np.ndarray, float] | None = field(default=None, repr=False)
+
+    def seed(self, stream: str) -> int:
+        return seeds.job_seed(self.inputs.arrange.seed, f"{self.job_id}/{stream}")
+
+    def albedo(self) -> np.ndarray:
+        if self._albedo is None:
+            self._albedo = self.draw_albedo()
+        return self._albedo
+
+    def depth16(self) -> tuple[np.ndarray, float]:
+        from ..outputs.images import encode_depth
+
+        if self._depth is None:
+            self._depth = encode_depth(self.annotation.depth, self.inputs.outputs.depth_scale)
+        return self._depth
+
+    def recorded_depth_scale(self) -> float:
+        """The scale the image's depth files were encoded with; without any, the spec's (1 for 'auto')."""
+        if self._depth is not None:
+            return float(self._depth[1])
+        scale = self.inputs.outputs.depth_scale
+        return 1.0 if scale == "auto" else float(scale)
+
+    def render_eye(self, t_w2c, folder: str) -> ImageRecord:
+        return self.other_eye(t_w2c, folder)
 
 
 def focused(inp: RenderInputs, cam, scene: RenderScene, focus_inst: int, job: Job):
@@ -217,6 +229,7 @@ class _Render:
     load_seconds: float
     by_id: dict  # obj_id -> ObjectAsset of every annotated object
     target: ErrorTarget | None  # quality.control: error
+    products: tuple[ViewProduct, ...]  # what every image writes besides its colour (by name)
 
 
 def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:

@@ -8,8 +8,9 @@ Units are part of every field description: metres, degrees, pixels.
 from __future__ import annotations
 
 import datetime
+import functools
 import math
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import (
     AfterValidator,
@@ -672,24 +673,19 @@ class Sensor(Strict):
 
 
 class Outputs(Strict):
-    bop: bool = True
-    parquet: bool = True
-    coco: bool = True
+    """What a build writes. Besides the fields below, every installed output has a switch here,
+    ``<name>: true | false``: per-view products (depth, masks, normals, ...) and dataset formats
+    (bop, coco, parquet, ...), each a plugin (`specsynth outputs` lists them)."""
+
+    # The installed outputs this model has a switch for (set on the model built from them, see
+    # ``outputs_model``); the base model has none.
+    registered: ClassVar[dict[str, Any]] = {}
+
     image_format: Literal["jpg", "png"] = "jpg"
     jpeg_quality: int = Field(95, ge=1, le=100)
-    depth: bool = True
     depth_scale: float | Literal["auto"] = Field(
         0.1, description="BOP depth scale: uint16 value * depth_scale = millimetres; 'auto' fits the range."
     )
-    masks: bool = True
-    exr: bool = Field(False, description="Also write the linear beauty pass as OpenEXR.")
-    normals: bool = Field(False, description="Also write camera-space unit surface normals (OpenCV axes: x right, "
-                          "y down, z forward), float32 OpenEXR RGB = (nx, ny, nz), 0 where empty, into normals/.")
-    albedo: bool = Field(False, description="Also write albedo maps (each surface's diffuse colour: base colour x "
-                         "texture x vertex colours, unlit), 8-bit sRGB PNG, into albedo/.")
-    nocs: bool = Field(False, description="Also write NOCS maps (model-frame point / bounding-box diagonal + 0.5, "
-                       "in [0, 1]; Wang et al. 2019) of every visible object pixel, float32 OpenEXR RGB, 0 "
-                       "elsewhere (mask_visib says whose), into nocs/.")
     chunk_size: int = Field(1000, ge=1, le=100_000, description="Images per BOP chunk folder.")
 
     @field_validator("depth_scale")
@@ -698,6 +694,56 @@ class Outputs(Strict):
         if v != "auto" and not (0 < v <= 1000):
             raise ValueError("depth_scale must be in (0, 1000] mm per unit, or 'auto'")
         return v
+
+    @model_validator(mode="after")
+    def _needs(self):
+        for name, switch in sorted(self.registered.items()):
+            missing = [n for n in switch.needs if getattr(self, name, False) and not getattr(self, n, False)]
+            if missing:
+                raise ValueError(f"{name} reads what {missing[0]} writes: switch on {missing[0]} too, or {name} off")
+        return self
+
+    def selected(self, kind: str) -> tuple[str, ...]:
+        """The switched-on outputs of ``kind`` ("product" or "writer"), by name."""
+        return tuple(n for n, s in sorted(self.registered.items()) if s.kind == kind and getattr(self, n))
+
+    @property
+    def products(self) -> tuple[str, ...]:
+        """The per-view products switched on: what the render jobs write besides the image."""
+        return self.selected("product")
+
+    def __reduce__(self):
+        # The model with the switches is made at run time (``outputs_model``): pickle by value and
+        # validate again on the other side, against what is installed there.
+        return _registered_outputs, (self.model_dump(),)
+
+
+@functools.cache
+def outputs_model(switches: tuple = ()) -> type[Outputs]:
+    """``Outputs`` with a boolean field per installed output that has a switch (``switches``:
+    ``plugins.output_switches()``): unknown names are unknown fields, and the JSON Schema and the
+    reference list what is installed."""
+    kind = {"product": "Per-view product", "writer": "Dataset format"}
+    fields = {s.name: (bool, Field(s.default, description=f"{kind[s.kind]}. {s.description}"))
+              for s in switches if s.switch}
+    model = create_model("Outputs", __base__=Outputs, __doc__=Outputs.__doc__, **fields)
+    model.registered = {s.name: s for s in switches if s.switch}
+    return model
+
+
+def installed_outputs_model() -> type[Outputs]:
+    from ..plugins import output_switches
+
+    return outputs_model(output_switches())
+
+
+def _registered_outputs(v: Any) -> Any:
+    model = installed_outputs_model()
+    if isinstance(v, model):
+        return v
+    if isinstance(v, BaseModel):
+        v = v.model_dump()
+    return model.model_validate({} if v is None else v)
 
 
 # --------------------------------------------------------------------------- dataset metadata
@@ -750,7 +796,9 @@ class DatasetSpec(Strict):
     backend: SerializeAsAny[BackendOptions] = Field(
         description="Render backend and its options, validated by the installed plugin named by 'name'."
     )
-    outputs: Outputs = Outputs()
+    outputs: SerializeAsAny[Outputs] = Field(
+        default_factory=Outputs, validate_default=True,
+        description="What a build writes: the files' format, and a switch per installed output.")
     metadata: Metadata = Metadata()
 
     @field_validator("backend", mode="before")
@@ -758,19 +806,25 @@ class DatasetSpec(Strict):
     def _plugin_options(cls, v):
         return _backend_options(v)
 
+    @field_validator("outputs", mode="before")
+    @classmethod
+    def _installed_outputs(cls, v):
+        return _registered_outputs(v)
+
 
 def json_schema(backends: tuple[str, ...] | None = None) -> dict:
     """The spec's schema with the options of every installed backend plugin (or of ``backends``)
-    under ``backend``."""
+    under ``backend``, and a switch per installed output under ``outputs``."""
     from ..plugins import installed_backend_plugins
 
     plugins = [p for p in installed_backend_plugins() if backends is None or p.name in backends]
-    model = DatasetSpec
+    fields: dict[str, Any] = {"outputs": (installed_outputs_model(), Field(
+        default_factory=Outputs, description=DatasetSpec.model_fields["outputs"].description))}
     if plugins:
         tagged = tuple(Annotated[p.options, Tag(p.name)] for p in plugins)
         one = plugins[0].options if len(plugins) == 1 else Annotated[Union[tagged], Discriminator(_backend_name)]
-        model = create_model("DatasetSpec", __base__=DatasetSpec, __doc__=DatasetSpec.__doc__,
-                             backend=(one, Field(description=DatasetSpec.model_fields["backend"].description)))
+        fields["backend"] = (one, Field(description=DatasetSpec.model_fields["backend"].description))
+    model = create_model("DatasetSpec", __base__=DatasetSpec, __doc__=DatasetSpec.__doc__, **fields)
     schema = model.model_json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "specsynth dataset spec"

@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
+from ..plugins import unknown_output
 from .models import DatasetSpec
 
 # A spec is small: anything that expands beyond this many nodes is an alias bomb, not a spec.
@@ -251,6 +252,9 @@ def _problem(file: str, loc: tuple, message: str, positions: dict, overrides: di
 
 def _message(err: dict) -> str:
     msg = err["msg"]
+    loc = tuple(err["loc"])
+    if err["type"] == "extra_forbidden" and len(loc) == 2 and loc[0] == "outputs":
+        return unknown_output(str(loc[1]))  # outputs.<name>: an output not installed, or none at all
     if err["type"] == "extra_forbidden":
         return "unknown field"
     if msg.startswith("Value error, "):

@@ -1,0 +1,78 @@
+"""Registered outputs: every product and writer is an entry point, and the spec's switches are their names."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from specsynth.output_api import DatasetWriter, ViewProduct, products, writers
+from specsynth.plugins import output_switches
+from specsynth.spec.yamlio import SpecError, load_spec
+
+SPEC = """\
+name: labels
+seed: 4
+intrinsics: {width: 96, height: 72, fx: 86.0, fy: 86.0, cx: 47.5, cy: 35.5}
+objects: {builtin: [duck, mug, jenga]}
+scenes: [{name: room}]
+arrangements: {count: 1}
+cameras: {per_arrangement: 2, distance: [0.35, 0.5]}
+backend: {name: photo}
+outputs: {image_format: png}
+"""
+
+
+def _spec(folder: Path, text: str = SPEC) -> Path:
+    f = folder / "labels.yaml"
+    f.write_text(text)
+    return f
+
+
+def test_every_output_is_registered_and_each_its_own_module():
+    found_products, found_writers = products(), writers()
+    assert {"albedo", "depth", "depth_noisy", "exr", "masks", "nocs", "normals", "right"} <= set(found_products)
+    assert {"bop", "coco", "parquet"} <= set(found_writers)
+    for name, p in found_products.items():
+        assert isinstance(p, ViewProduct) and p.name == name
+    for name, w in found_writers.items():
+        assert isinstance(w, DatasetWriter) and w.name == name
+    modules = [type(o).__module__ for o in (*found_products.values(), *found_writers.values())]
+    assert len(set(modules)) == len(modules)  # one module per output
+    switches = {s.name for s in output_switches() if s.switch}
+    assert switches == set(found_writers) | {n for n, p in found_products.items() if p.switch}
+
+
+def test_an_unknown_output_names_the_known_ones(tmp_path):
+    f = _spec(tmp_path)
+    with pytest.raises(SpecError) as e:
+        load_spec(f, ["outputs.normal=true"])
+    msg = str(e.value)
+    assert "--set outputs.normal" in msg and "unknown output 'normal'" in msg and "did you mean 'normals'" in msg
+    assert "known are albedo, bop, coco, depth" in msg and "needs that package installed" in msg
+    f.write_text(SPEC.replace("outputs: {image_format: png}", "outputs:\n  image_format: png\n  instance_map: true"))
+    with pytest.raises(SpecError, match=r"labels.yaml:11:3: outputs.instance_map: unknown output 'instance_map'"):
+        load_spec(f)
+
+
+def test_a_broken_output_says_what_to_reinstall(tmp_path, monkeypatch):
+    dist = tmp_path / "site" / "specsynth_broken-0.1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: specsynth-broken\nVersion: 0.1.0\n")
+    (dist / "entry_points.txt").write_text("[specsynth.products]\nglow = specsynth_broken_missing:PRODUCT\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    with pytest.raises(SpecError, match=r"product 'glow' cannot be imported .*reinstall specsynth-broken"):
+        load_spec(_spec(tmp_path), ["outputs.glow=true"])
+    assert load_spec(_spec(tmp_path)).spec.outputs.products == ("depth", "masks")  # the others still work
+
+
+def test_a_spec_pickles_with_its_switches(tmp_path):
+    """The outputs model is made from what is installed, at run time: a spec still crosses a
+    process boundary (executors, caches) and comes back equal."""
+    import copy
+    import pickle
+
+    spec = load_spec(_spec(tmp_path), ["outputs.normals=true", "outputs.coco=false"]).spec
+    back = pickle.loads(pickle.dumps(spec))
+    assert back == spec == copy.deepcopy(spec)
+    assert back.outputs.products == ("depth", "masks", "normals") and "coco" not in back.outputs.selected("writer")
