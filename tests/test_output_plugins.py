@@ -7,7 +7,9 @@ from pathlib import Path
 import pytest
 
 from specsynth.output_api import DatasetWriter, ViewProduct, products, writers
+from specsynth.plan.compiler import compile_spec
 from specsynth.plugins import output_switches
+from specsynth.run.build import build
 from specsynth.spec.yamlio import SpecError, load_spec
 
 SPEC = """\
@@ -32,7 +34,7 @@ def _spec(folder: Path, text: str = SPEC) -> Path:
 def test_every_output_is_registered_and_each_its_own_module():
     found_products, found_writers = products(), writers()
     assert {"albedo", "depth", "depth_noisy", "exr", "masks", "nocs", "normals", "right"} <= set(found_products)
-    assert {"bop", "coco", "parquet"} <= set(found_writers)
+    assert {"bop", "coco", "parquet", "yolo"} <= set(found_writers)
     for name, p in found_products.items():
         assert isinstance(p, ViewProduct) and p.name == name
     for name, w in found_writers.items():
@@ -55,6 +57,11 @@ def test_an_unknown_output_names_the_known_ones(tmp_path):
         load_spec(f)
 
 
+def test_a_writer_needs_what_it_reads(tmp_path):
+    with pytest.raises(SpecError, match="yolo reads what bop writes: switch on bop too"):
+        load_spec(_spec(tmp_path), ["outputs.yolo=true", "outputs.bop=false"])
+
+
 def test_a_broken_output_says_what_to_reinstall(tmp_path, monkeypatch):
     dist = tmp_path / "site" / "specsynth_broken-0.1.0.dist-info"
     dist.mkdir(parents=True)
@@ -64,6 +71,27 @@ def test_a_broken_output_says_what_to_reinstall(tmp_path, monkeypatch):
     with pytest.raises(SpecError, match=r"product 'glow' cannot be imported .*reinstall specsynth-broken"):
         load_spec(_spec(tmp_path), ["outputs.glow=true"])
     assert load_spec(_spec(tmp_path)).spec.outputs.products == ("depth", "masks")  # the others still work
+
+
+def test_yolo_as_a_writer_equals_the_export(tmp_path):
+    """outputs.yolo: the merge exports the build into <out>/yolo exactly as `specsynth export yolo`
+    would into a folder of its own; switched off, the folder goes."""
+    from specsynth.outputs.yolo import export_yolo
+
+    f = _spec(tmp_path)
+    out = tmp_path / "out"
+    s = build(compile_spec(load_spec(f, ["outputs.yolo=true", "cameras.stereo={baseline: 0.05}"])), out, jobs=1)
+    assert not s.failures and s.images >= 2
+    export_yolo(out, tmp_path / "exported")
+
+    def tree(root: Path) -> dict[str, bytes]:
+        return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+    made = tree(out / "yolo")
+    assert made == tree(tmp_path / "exported")
+    assert {"data.yaml", "labels/train_pbr_right/train_pbr_right_000000_000000.txt"} <= set(made)
+    build(compile_spec(load_spec(f)), out, jobs=1)
+    assert not (out / "yolo").exists() and (out / "bop" / "train_pbr").is_dir()
 
 
 def test_a_spec_pickles_with_its_switches(tmp_path):

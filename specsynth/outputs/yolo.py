@@ -16,6 +16,9 @@ YOLO split as the rest of its arrangement.
 Boxes are the visible (modal) boxes, in COCO's pixel convention (``w = xmax - xmin + 1``, pixel
 ``i`` spanning ``[i, i + 1)``), normalised by the image size: what Ultralytics' own COCO
 converter produces. Class indices are 0-based in obj_id order.
+
+As a dataset writer (``outputs.yolo: true``, after BOP) the merge exports the build into
+``<out>/yolo/`` with the defaults: every split a training split, names from the build's models.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from typing import Sequence
 import yaml
 
 from ..files import UnsafeOutput, refuse_links_out
+from ..output_api import DatasetWriter, Merge
 from .dataset import coco_box, place_file, write_if_changed
 from .qa import BopImage, list_images
 
@@ -201,6 +205,13 @@ def export_yolo(
     if not (out / "bop").is_dir():
         raise ExportError(f"{out}: no bop/ folder (build with outputs.bop: true)")
     _check_dest(dest, out)
+    return _export(out, dest, min_visib=min_visib, val_split=val_split, val_fraction=val_fraction)
+
+
+def _export(out: Path, dest: Path, *, min_visib: float, val_split: str | None, val_fraction: float,
+            names: dict[int, str] | None = None) -> YoloSummary:
+    """The export once its options and destination are known to be good; ``names``: obj_id ->
+    class name (default: read from the dataset's models and COCO files)."""
     missing: list[Path] = []
     images = list_images(out, missing)
     _check_rgb(missing)
@@ -210,9 +221,9 @@ def export_yolo(
     if val_split is not None and val_split not in splits:
         raise ExportError(f"--val {val_split!r}: no such split in {out / 'bop'} (have {', '.join(sorted(splits))})")
 
-    names = class_names(out, images)
+    names = class_names(out, images) if names is None else names
     class_of = {obj_id: i for i, obj_id in enumerate(sorted(names))}
-    arr = arrangement_of(out)
+    arr = arrangement_of(out) if val_fraction > 0 else {}
 
     def group_of(img: BopImage) -> str:
         """Both eyes of a view, and every view of an arrangement, in one group."""
@@ -276,3 +287,21 @@ def _remove_stale(dest: Path, keep: dict[str, set[str]]) -> None:
             for p in folder.iterdir():
                 if _OURS.match(p.name) and p.name not in keep.get(folder.name, set()):
                     p.unlink()
+
+
+class YoloWriter(DatasetWriter):
+    name = "yolo"
+    description = ("Ultralytics YOLO: yolo/data.yaml, images/ (copies) and labels/ of visible boxes, every split for "
+                   "training (specsynth export yolo holds some out).")
+    needs = ("bop",)  # it exports the BOP output just written
+
+    def write(self, merge: Merge) -> dict[str, int]:
+        s = _export(Path(merge.out), Path(merge.out) / "yolo", min_visib=DEFAULT_MIN_VISIB, val_split=None,
+                    val_fraction=0.0, names={m.obj_id: m.name for m in sorted(merge.models, key=lambda m: m.obj_id)})
+        return {"yolo_images": sum(s.images.values()), "yolo_boxes": s.boxes}
+
+    def owns(self, rel: str, merge: Merge) -> bool | None:
+        return True if rel.split("/")[0] == "yolo" else None
+
+
+WRITER = YoloWriter()
