@@ -1,10 +1,16 @@
-"""Registered outputs: every product and writer is an entry point, and the spec's switches are their names."""
+"""Registered outputs: every product and writer is an entry point, the spec's switches are their names,
+and a package specsynth does not know adds a map and a format (examples/plugin_output) with no
+change to the core."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import numpy as np
+import pyarrow.parquet as pq
 import pytest
+from PIL import Image
 
 from specsynth.output_api import DatasetWriter, ViewProduct, products, writers
 from specsynth.plan.compiler import compile_spec
@@ -12,6 +18,8 @@ from specsynth.plugins import output_switches
 from specsynth.run.build import build
 from specsynth.spec.yamlio import SpecError, load_spec
 
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "plugin_output"
 SPEC = """\
 name: labels
 seed: 4
@@ -23,6 +31,21 @@ cameras: {per_arrangement: 2, distance: [0.35, 0.5]}
 backend: {name: photo}
 outputs: {image_format: png}
 """
+
+
+@pytest.fixture
+def labels_installed(tmp_path, monkeypatch):
+    """The example package registered as pip would: a distribution's metadata with its entry
+    points on the path (build workers are spawned with the same path)."""
+    dist = tmp_path / "site" / "specsynth_labels-0.1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: specsynth-labels\nVersion: 0.1.0\n")
+    (dist / "entry_points.txt").write_text(
+        "[specsynth.products]\ninstance_map = specsynth_labels.instance_map:PRODUCT\n\n"
+        "[specsynth.writers]\nboxes_csv = specsynth_labels.boxes_csv:WRITER\n")
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    return tmp_path
 
 
 def _spec(folder: Path, text: str = SPEC) -> Path:
@@ -71,6 +94,39 @@ def test_a_broken_output_says_what_to_reinstall(tmp_path, monkeypatch):
     with pytest.raises(SpecError, match=r"product 'glow' cannot be imported .*reinstall specsynth-broken"):
         load_spec(_spec(tmp_path), ["outputs.glow=true"])
     assert load_spec(_spec(tmp_path)).spec.outputs.products == ("depth", "masks")  # the others still work
+
+
+def test_a_third_party_map_and_format_without_touching_the_core(labels_installed, tmp_path):
+    core = "\n".join(p.read_text() for p in (ROOT / "specsynth").rglob("*.py"))
+    assert "instance_map" not in core and "boxes_csv" not in core
+    f = _spec(tmp_path)
+    on = ["outputs.instance_map=true", "outputs.boxes_csv=true"]
+    plain, labelled = compile_spec(load_spec(f)), compile_spec(load_spec(f, on))
+    assert plain.stage_digests["render"] != labelled.stage_digests["render"]  # a product re-renders
+    assert "specsynth-labels 0.1.0" in labelled.stage_inputs["render"]["products"]
+    out = tmp_path / "out"
+    s = build(labelled, out, jobs=1)
+    assert not s.failures and s.images >= 1
+
+    chunk = out / "bop" / "train_pbr" / "000000"
+    gt = json.loads((chunk / "scene_gt.json").read_text())
+    for im, objects in gt.items():
+        labels = np.asarray(Image.open(chunk / "instance_map" / f"{int(im):06d}.png"))
+        assert labels.dtype == np.uint16
+        for k in range(len(objects)):
+            visible = np.asarray(Image.open(chunk / "mask_visib" / f"{int(im):06d}_{k:06d}.png")) > 0
+            assert np.array_equal(labels == k + 1, visible)
+    images = pq.read_table(out / "parquet" / "images.parquet").to_pylist()
+    assert all((out / r["instance_map"]).is_file() for r in images)
+    rows = (out / "csv" / "train_pbr.csv").read_text().splitlines()
+    info = json.loads((chunk / "scene_gt_info.json").read_text())
+    assert len(rows) - 1 == sum(g["px_count_visib"] > 0 for v in info.values() for g in v)
+    assert s.stages["render"].ran == s.images
+
+    # Switched off again: the same folder rebuilt keeps neither.
+    s2 = build(compile_spec(load_spec(f)), out, jobs=1)
+    assert not s2.failures and not (out / "csv").exists() and not list(out.rglob("instance_map"))
+    assert "instance_map" not in pq.read_schema(out / "parquet" / "images.parquet").names
 
 
 def test_yolo_as_a_writer_equals_the_export(tmp_path):
