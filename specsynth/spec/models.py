@@ -739,6 +739,10 @@ def installed_outputs_model() -> type[Outputs]:
 
 def _registered_outputs(v: Any) -> Any:
     model = installed_outputs_model()
+    if not any(s.kind == "writer" for s in model.registered.values()):
+        # Without its own entry points a build would write the images and no dataset at all.
+        raise ValueError("no dataset writer is installed: specsynth's own entry points are missing or out of "
+                         "date; reinstall it (pip install -e . in its repository, or make install)")
     if isinstance(v, model):
         return v
     if isinstance(v, BaseModel):
