@@ -162,6 +162,66 @@ def test_render_to_target_is_deterministic():
     assert runs[0].stats() == runs[1].stats()
 
 
+class SmallDenoiser(NoisyRenderer):
+    """Renders denoised by a 3 x 3 box filter over the whole image (any size)."""
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        from scipy.ndimage import uniform_filter
+
+        res = super().__call__(samples, i)
+        return RenderResult(res.rgb, uniform_filter(res.linear, size=(3, 3, 1), mode="nearest"), res.stats, noisy=res.linear)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.01, 10.0), start=st.integers(1, 8), paper=st.integers(1, 400),
+       extra=st.integers(0, 600), denoised=st.booleans())
+def test_render_to_target_ends_within_its_budget_in_pairs_and_is_deterministic(seed, sigma, start, paper, extra, denoised):
+    """Whatever the noise, the paper's samples and the budget: the loop ends, never spends more
+    than max_samples, renders whole pairs whose seeds are 0, 1, 2, ..., reports what it spent, and
+    a deterministic renderer gives the same image and numbers twice."""
+    mu = scene(seed)[::6, ::6]
+    target = ErrorTarget(paper_samples=paper, start_samples=start, max_samples=2 * start + extra)
+    kind = SmallDenoiser if denoised else NoisyRenderer
+    runs = []
+    for _ in range(2):
+        r = kind(mu, sigma, seed)
+        seen = []
+        done = render_to_target(lambda n, i: (seen.append(i), r(n, i))[1], target, linear_to_srgb8)
+        runs.append(done)
+        assert done.samples == sum(r.calls) <= target.max_samples
+        assert done.renders == len(r.calls) and done.renders % 2 == 0 and seen == list(range(done.renders))
+        assert all(r.calls[k] == r.calls[k + 1] >= 1 for k in range(0, len(r.calls), 2))
+        if not denoised and done.samples < paper:  # raw renders stop short of the paper's samples
+            assert done.samples + 2 > target.max_samples  # only when the budget is spent
+    assert runs[0].result.linear.tobytes() == runs[1].result.linear.tobytes() and runs[0].stats() == runs[1].stats()
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 5.0), paper=st.integers(4, 400))
+def test_raw_renders_stop_at_the_first_pair_that_reaches_the_paper_samples(seed, sigma, paper):
+    """Without a denoiser the image is the mean of every sample: its error and the target are one
+    variance, at the samples spent and at the paper's, so it stops at the first pair that brings
+    it to the paper's samples (no standard errors to spare: none are needed) and not before."""
+    r = NoisyRenderer(scene(seed)[::4, ::4], sigma, seed)
+    done = render_to_target(r, ErrorTarget(paper_samples=paper, start_samples=1, max_samples=4 * paper), linear_to_srgb8)
+    assert done.samples - 2 * r.calls[-1] < paper <= done.samples
+    assert done.error <= done.target
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_a_very_noisy_denoised_image_gets_its_true_target(seed):
+    """At 2 samples per render the raw mean is so noisy that normalising the target by it made
+    the target 2.7-2.8x the paper preset's true error (these two images stopped at 4 samples with
+    1.3-1.4x the paper's error): the target and the estimates share the denoised normaliser."""
+    mu = scene(seed)
+    mu[:, 60:] *= 0.3
+    r = DenoisingRenderer(mu, 2.0, seed)
+    done = render_to_target(r, ErrorTarget(225, 2, 900), linear_to_srgb8)
+    truth_paper = float(np.mean((2.0 * mu) ** 2 / 225 / (mu**2 + 1e-2)))
+    assert done.target == pytest.approx(truth_paper, rel=0.15)
+    assert rel_mse(done.result.linear, mu) <= 1.1 * truth_paper
+
+
 def test_error_target_refuses_an_empty_budget():
     with pytest.raises(ValueError, match="at least 1 sample"):
         ErrorTarget(paper_samples=100, start_samples=0, max_samples=100)

@@ -143,21 +143,74 @@ class _Raw:
         self.sums[g] = self.sums[g] + np.asarray(linear, np.float64) * samples
         self.counts[g] += samples
 
-    def estimate(self, paper_samples: int) -> tuple[np.ndarray, float, float, float]:
-        """(the image, its estimated error, the estimate's standard error, the paper's error)."""
-        a, b = self.sums[0] / self.counts[0], self.sums[1] / self.counts[1]
-        out = (a + b) / 2
-        error, se = mean_and_error(((a - b) ** 2 / 4 / (out**2 + EPS)).mean(axis=-1))
-        return out, error, se, extrapolated_rel_mse(a, b, min(self.counts), paper_samples, norm=out)
+    def halves(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.sums[0] / self.counts[0], self.sums[1] / self.counts[1]
 
 
-def _denoised_pair(pair: list[RenderResult], samples: int, paper_samples: int) -> tuple[np.ndarray, float, float, float]:
-    """A pair denoised by the backend: (their mean, its estimated error and standard error, the
-    paper's error extrapolated from the two renders before the denoiser)."""
-    (a, b) = pair
-    out = (np.asarray(a.linear, np.float64) + b.linear) / 2
-    error, se = mean_and_error(denoised_rel_mse_map(a.linear, b.linear, a.noisy, b.noisy, norm=out).mean(axis=-1))
-    return out, error, se, extrapolated_rel_mse(a.noisy, b.noisy, samples, paper_samples, norm=out)
+@dataclass(frozen=True)
+class _Candidate:
+    """One way to the image: the raw renders' mean, or the last pair denoised and averaged."""
+
+    image: np.ndarray
+    error: float  # its estimated relative MSE
+    se: float  # the estimate's standard error
+    # The estimate plus ``confidence`` standard errors of (estimate - target): the target's own
+    # noise counted too, and nothing twice where both come from the same renders.
+    upper: float
+
+
+def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, confidence: float) -> _Candidate:
+    error, se = mean_and_error(error_map)
+    return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1])
+
+
+def _candidates(raw: _Raw, pair: list[RenderResult], paper_samples: int, confidence: float) -> tuple[float, list[_Candidate]]:
+    """(the paper preset's estimated error at this view, [the raw candidate, the denoised one
+    when the backend denoises]). One normaliser for all of them, the denoised mean where there is
+    one: the raw mean of a few samples is so noisy that ``1 / (norm² + ε)`` of it inflates the
+    target (measured: 2-3x at 2 samples per render on a noisy image) and the stop comes early."""
+    a, b = raw.halves()
+    raw_image = (a + b) / 2
+    den_image = None if pair[0].noisy is None else (np.asarray(pair[0].linear, np.float64) + pair[1].linear) / 2
+    norm2 = (raw_image if den_image is None else den_image) ** 2 + EPS
+    raw_map = ((a - b) ** 2 / 4 / norm2).mean(axis=-1)
+    # the raw mean's error scaled from its samples to the paper's (see extrapolated_rel_mse)
+    paper_map = raw_map * 2 * min(raw.counts) / paper_samples
+    out = [_candidate(raw_image, raw_map, paper_map, confidence)]
+    if den_image is not None:
+        (x, y) = pair
+        den_map = denoised_rel_mse_map(x.linear, y.linear, x.noisy, y.noisy, norm=den_image).mean(axis=-1)
+        out.append(_candidate(den_image, den_map, paper_map, confidence))
+    return float(paper_map.mean()), out
+
+
+def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int, raw: _Raw,
+                 phases: dict[str, float]) -> tuple[list[RenderResult], list[int]]:
+    """The ``first``-th and the next render of ``n`` samples, their raw samples added to ``raw``'s
+    two halves and their time to ``phases`` -> (the pair, the samples each took)."""
+    pair, took = [], []
+    for g in (0, 1):
+        res = render(n, first + g)
+        took.append(int(res.stats.get("samples", res.stats.get("spp", n))))
+        raw.add(g, res.noisy if res.noisy is not None else res.linear, took[-1])
+        for k, v in (res.stats.get("phases") or {}).items():  # the image's time is every render's
+            phases[k] = phases.get(k, 0.0) + v
+        pair.append(res)
+    return pair, took
+
+
+def _next_step(history: list[tuple[int, float]], n: int, spent: int, paper: float,
+               target: ErrorTarget) -> tuple[int, bool]:
+    """(samples per render of the next pair, whether it is a new pair for the denoised way): the
+    cheaper way on. More raw samples reach the target at the paper's samples whatever the scene
+    (the raw mean's error and the target are one variance, at ``spent`` and at the paper's
+    samples); a new, larger denoised pair (whose samples are all new) is chosen only at half the
+    cost of the raw way, its fall being predicted. 0 samples: the budget is spent."""
+    raw_need = max(1, target.paper_samples - spent)
+    den_need = 2 * math.ceil(samples_needed(history, paper) / 2) if history else None
+    den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
+    n = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
+    return min(sample_step(n), (target.max_samples - spent) // 2), den_step
 
 
 def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
@@ -167,49 +220,26 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
     at this view (with ``target.confidence`` standard errors to spare), or the budget is spent.
 
     Every render's raw samples (before a denoiser) are accumulated: their mean is an unbiased
-    image of all the samples spent, which reaches the target at about the paper's samples. Renders
+    image of all the samples spent, which reaches the target at the paper's samples. Renders
     denoised by the backend cannot be accumulated: a step renders a new pair with the samples
     the last pair's estimate asks for, and that pair's mean is the other candidate; its error
     estimate needs nothing of the denoiser but that it treats the two renders alike and
     independently. The image is the candidate with the lower bound; the next step is the
-    cheaper way to the target."""
-    raw, history, stats, phases = _Raw(), [], {}, {}
-    n, renders, spent, best, den_step = target.start_samples, 0, 0, None, True
+    cheaper way to the target (``_next_step``)."""
+    raw, history, phases = _Raw(), [], {}
+    n, renders, spent, den_step = target.start_samples, 0, 0, True
     while True:
-        pair = []
-        for g in (0, 1):
-            res = render(n, renders)
-            got = int(res.stats.get("samples", res.stats.get("spp", n)))
-            renders, spent = renders + 1, spent + got
-            raw.add(g, res.noisy if res.noisy is not None else res.linear, got)
-            pair.append(res)
-            for k, v in (res.stats.get("phases") or {}).items():  # the image's time is every render's
-                phases[k] = phases.get(k, 0.0) + v
-            stats = res.stats
-        out, error, se, paper = raw.estimate(target.paper_samples)
-        raw_need = samples_needed([(spent, error + target.confidence * se)], paper) - spent
-        best = (out, error, se)
-        den_need = None
-        if pair[0].noisy is not None:
-            d_out, d_err, d_se, _ = _denoised_pair(pair, got, target.paper_samples)
-            if den_step:  # a pair rendered for the denoised way (not a top-up of the raw one)
-                history.append((2 * got, d_err + target.confidence * d_se))
-            if d_err + target.confidence * d_se < error + target.confidence * se:
-                best = (d_out, d_err, d_se)
-            den_need = 2 * math.ceil(samples_needed(history, paper) / 2)
-        out, error, se = best
-        if error + target.confidence * se <= paper or spent + 2 > target.max_samples:
+        pair, took = _render_pair(render, n, renders, raw, phases)
+        renders, spent = renders + 2, spent + sum(took)
+        paper, candidates = _candidates(raw, pair, target.paper_samples, target.confidence)
+        if len(candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
+            history.append((sum(took), candidates[1].upper))
+        best = min(candidates, key=lambda c: c.upper)  # the raw one on a tie
+        if best.upper <= paper or spent + 2 > target.max_samples:
             break
-        # the cheaper way on: more raw samples for the accumulation, or a new, larger denoised pair
-        # (whose samples are all new: it wins only at half the cost, its fall being predicted)
-        den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
-        if den_step:
-            n = max(n + 1, den_need // 2)
-        else:
-            n = max(1, math.ceil(raw_need / 2))
-        n = min(sample_step(n), (target.max_samples - spent) // 2)
+        n, den_step = _next_step(history, n, spent, paper, target)
         if n < 1:
             break
-    linear = out.astype(np.float32)
-    res = RenderResult(rgb=encode(linear), linear=linear, stats={**stats, "phases": phases})
-    return TargetedResult(res, spent, renders, error, paper, history, se)
+    linear = best.image.astype(np.float32)
+    res = RenderResult(rgb=encode(linear), linear=linear, stats={**pair[-1].stats, "phases": phases})
+    return TargetedResult(res, spent, renders, best.error, paper, history, best.se)
