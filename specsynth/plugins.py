@@ -113,19 +113,25 @@ class BackendPlugin:
         """The spec's options with the level's calibration filled in where the spec is silent.
 
         A calibration's few samples reach the paper's error only through its denoiser: a spec
-        that turns denoising off gets the paper preset's own samples instead of a noisy image."""
-        cal = self.calibrated.get(quality.paper_level) if quality.calibrated else None
-        if cal and getattr(quality, "control", "samples") == "error":  # samples: per render (error_target)
-            cal = {k: v for k, v in cal.items() if k != "samples"}
-        if not cal or (cal.get("denoise") and "denoise" in options.model_fields_set and not options.denoise):
-            return options
-        update = {k: v for k, v in cal.items() if k not in options.model_fields_set}
+        that turns denoising off gets the paper preset's own samples instead of a noisy image.
+        Under ``quality.control: error`` every render takes the samples the error target asks for
+        (the preset's, set per render): no ``samples`` here, the spec's own start the image
+        (``error_target``)."""
+        cal = dict(self.calibrated.get(quality.paper_level) or {}) if quality.calibrated else {}
+        update = {}
+        if getattr(quality, "control", "samples") == "error":
+            cal.pop("samples", None)
+            if options.samples is not None:
+                update["samples"] = None
+        if cal and not (cal.get("denoise") and "denoise" in options.model_fields_set and not options.denoise):
+            update.update({k: v for k, v in cal.items() if k not in options.model_fields_set})
         return options.model_copy(update=update) if update else options
 
     def error_target(self, options: Any, quality: Any):
         """``quality.control: error``: the paper preset's samples (whose error is the target), the
-        samples per render (half the level's calibrated samples: the first pair costs what one
-        calibrated render does) and the image's budget."""
+        samples per render of the first pair (the spec's own ``options``' samples, else half the
+        level's calibrated samples: the first pair costs what one calibrated render does) and the
+        image's budget."""
         from .model.error import ErrorTarget
 
         paper = quality.resolved().samples

@@ -222,6 +222,26 @@ def test_a_very_noisy_denoised_image_gets_its_true_target(seed):
     assert rel_mse(done.result.linear, mu) <= 1.1 * truth_paper
 
 
+def test_backend_samples_start_an_error_target_and_every_render_takes_its_own():
+    """backend.samples with control: error: the first pair's samples per render; the backend's
+    options lose them, so that each render takes the samples the target asks for (a backend
+    whose options fix the samples renders them whatever the preset says, and the image went past
+    its budget: 4 renders of 64 against 225)."""
+    from specsynth.plugins import BackendPlugin
+    from specsynth.spec.models import BackendOptions, Quality
+
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X",
+                           calibrated={"high": {"samples": 4, "denoise": True}})
+    q = Quality(level="high", control="error")
+    spec = BackendOptions(name="x", samples=64)
+    assert plugin.error_target(spec, q) == ErrorTarget(paper_samples=225, start_samples=64, max_samples=225)
+    filled = plugin.options_for(spec, q)
+    assert (filled.samples, filled.denoise) == (None, True)
+    assert plugin.options_for(BackendOptions(name="x"), q).samples is None
+    assert plugin.error_target(BackendOptions(name="x"), q).start_samples == 2
+    assert plugin.options_for(spec, Quality(level="high")).samples == 64  # control: samples keeps them
+
+
 def test_error_target_refuses_an_empty_budget():
     with pytest.raises(ValueError, match="at least 1 sample"):
         ErrorTarget(paper_samples=100, start_samples=0, max_samples=100)

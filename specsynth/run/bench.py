@@ -308,8 +308,8 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
     target = None
     if st.options.get("__control__") == "error":
         quality = spec.quality.model_copy(update={"level": st.level, "control": "error"})
+        target = plugin.error_target(options, quality)  # the setting's own samples start it
         options = plugin.options_for(options, quality)
-        target = plugin.error_target(options, quality)
     backend = cls(options, threads=0)
     draw = _drawer(backend, preset, target, spec.quality.clamp)
     times, errs, loads, phase_sums, views = [], [], [], {}, []

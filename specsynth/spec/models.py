@@ -552,7 +552,8 @@ class BackendOptions(Strict):
     )
     denoise_quality: Literal["fast", "balanced", "high"] = Field(
         "high", description="OpenImageDenoise filter quality: 'balanced' costs about half of 'high' on the CPU.")
-    samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count.")
+    samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count "
+                                "(under quality.control: error, the first pair's samples per render).")
 
     def input_folders(self) -> dict[str, str]:
         """Folders (other than assets) whose files change renders, by option name: the compiler
