@@ -242,6 +242,29 @@ def test_backend_samples_start_an_error_target_and_every_render_takes_its_own():
     assert plugin.options_for(spec, Quality(level="high")).samples == 64  # control: samples keeps them
 
 
+def test_an_image_without_noise_is_at_its_target_everywhere_it_is_counted(tmp_path):
+    """A black image (target 0) stops after one pair; the record, summary.json and `specsynth
+    stats` count it within its target alike (the summary left it out, stats counted it above)."""
+    import pandas as pd
+
+    from specsynth.outputs.parquet import error_columns
+    from specsynth.outputs.qa import error_stats
+    from specsynth.run.build import error_control_summary
+
+    black = render_to_target(NoisyRenderer(np.zeros((16, 16, 3)), 1.0, 1), ErrorTarget(225, 2, 225), linear_to_srgb8)
+    assert (black.samples, black.renders, black.error, black.target) == (4, 2, 0.0, 0.0)
+    noisy = render_to_target(NoisyRenderer(scene(2), 0.5, 1), ErrorTarget(225, 2, 225), linear_to_srgb8)
+    stats = [black.stats(), noisy.stats()]
+    assert black.stats()["error_ratio"] == 0.0
+    summary = error_control_summary(stats)
+    assert summary["images"] == 2 and summary["within_10_percent"] == 1.0
+    (tmp_path / "parquet").mkdir()
+    pd.DataFrame([{"render_seconds": 1.0, **error_columns(s)} for s in stats]).to_parquet(tmp_path / "parquet" / "timings.parquet")
+    table = error_stats(tmp_path, tmp_path)
+    assert table["error_control"]["images"] == 2 and table["error_control"]["within_10_percent"] == 1.0
+    assert table["error_control"]["error_ratio_median"] == pytest.approx(summary["error_ratio"]["median"])
+
+
 def test_error_target_refuses_an_empty_budget():
     with pytest.raises(ValueError, match="at least 1 sample"):
         ErrorTarget(paper_samples=100, start_samples=0, max_samples=100)

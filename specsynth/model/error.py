@@ -103,8 +103,15 @@ class TargetedResult:
 
     def stats(self) -> dict:
         return {"samples": self.samples, "renders": self.renders, "error_estimate": self.error,
-                "error_se": self.error_se,
-                "error_target": self.target, "error_ratio": self.error / self.target if self.target > 0 else 0.0}
+                "error_se": self.error_se, "error_target": self.target,
+                "error_ratio": float(error_ratio(self.error, self.target))}
+
+
+def error_ratio(estimate, target) -> np.ndarray:
+    """Estimated error over target, per image, as the record, ``summary.json`` and ``specsynth
+    stats`` report it: 0 where the target is 0 (an image without noise: its first pair reaches it)."""
+    est, tgt = np.asarray(estimate, np.float64), np.asarray(target, np.float64)
+    return np.divide(est, tgt, out=np.zeros(np.broadcast(est, tgt).shape), where=tgt > 0)
 
 
 MAX_GROWTH = 8  # a step renders at most this many times the samples spent so far

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..model.error import error_ratio
+
 
 class DatasetFileError(ValueError):
     """A file of a built dataset that cannot be read; the message names it (never its contents)."""
@@ -240,7 +242,7 @@ def error_stats(out: Path, dest: Path) -> dict:
     import matplotlib.pyplot as plt
 
     t = timings.dropna(subset=["error_target"])
-    ratio = (t["error_estimate"] / t["error_target"]).to_numpy()
+    ratio = error_ratio(t["error_estimate"], t["error_target"])
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.5))
     a.hist(t["samples"], bins=30, color="tab:blue")
     a.set_title("samples per pixel per image")

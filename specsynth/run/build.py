@@ -24,6 +24,7 @@ import numpy as np
 
 from .. import notices
 from ..files import UnsafeOutput, refuse_links_out  # noqa: F401  (UnsafeOutput: the CLI's)
+from ..model.error import error_ratio
 from ..model.records import ImageRecord
 from ..plan import keys
 from ..plan.compiler import STAGES, JobGraph
@@ -562,11 +563,11 @@ def _account_savings(summary: BuildSummary, images, cached_render: set[str]) -> 
 
 def error_control_summary(stats: list[dict]) -> dict[str, Any]:
     """Samples and estimated error against target over the images rendered to an error target."""
-    got = [s for s in stats if s.get("error_target")]
+    got = [s for s in stats if "error_target" in s]  # a target of 0 too: an image without noise
     if not got:
         return {}
     samples = np.array([s["samples"] for s in got], float)
-    ratio = np.array([s["error_estimate"] / s["error_target"] for s in got])
+    ratio = error_ratio([s["error_estimate"] for s in got], [s["error_target"] for s in got])
     return {"images": len(got),
             "samples": {"median": float(np.median(samples)), "p95": float(np.percentile(samples, 95)),
                         "max": int(samples.max())},
