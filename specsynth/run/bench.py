@@ -19,13 +19,13 @@ from typing import Any
 import numpy as np
 
 from ..model.colour import linear_to_srgb8
-from ..model.error import rel_mse, render_to_target, split_rel_mse
-from ..model.ir import RenderResult
+from ..model.error import rel_mse, split_rel_mse
 from ..model.records import ArrangementRecord, ViewRecord
 from ..plan.compiler import JobGraph
 from ..plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_backend_plugins
 from ..spec.models import PAPER_PRESETS, QualityPreset
 from .build import build
+from .render import draw_to_target
 from .store import Store, write_json
 
 
@@ -287,6 +287,25 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
     return rows, savings
 
 
+def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
+    """(the backend's options, the preset it renders, the error target of a ``+targeted`` setting
+    or None) of one setting; a reference renders every ray count of the preset times its factor,
+    in two halves (backends take samples from their max)."""
+    opts = {**base_opts, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
+    preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
+    if st.reference:
+        f = st.options["__factor__"]
+        preset = QualityPreset(**{**preset.model_dump(), "aa": max(1, preset.aa * f // 2),
+                                  "diffuse_rays": max(1, preset.diffuse_rays * f // 2),
+                                  "specular_rays": max(1, preset.specular_rays * f // 2)})
+    options, target = plugin.options.model_validate(opts), None
+    if st.options.get("__control__") == "error":
+        quality = spec.quality.model_copy(update={"level": st.level, "control": "error"})
+        target = plugin.error_target(options, quality)  # the setting's own samples start it
+        options = plugin.options_for(options, quality)
+    return options, preset, target
+
+
 REF_SEEDS = (7919, 7920)  # the reference's two halves: seeds no setting renders with
 
 
@@ -296,20 +315,7 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
     the reference setting, benched first, puts into ``refs``: its mean and its own variance)."""
     from ..outputs.images import write_png
 
-    opts = {**base_opts, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
-    quality = spec.quality.model_copy(update={"level": f"paper_{st.level}"})
-    preset = quality.resolved()
-    if st.reference:
-        f = st.options["__factor__"]  # every ray count (backends take samples from their max), in two halves
-        preset = QualityPreset(**{**preset.model_dump(), "aa": max(1, preset.aa * f // 2),
-                                  "diffuse_rays": max(1, preset.diffuse_rays * f // 2),
-                                  "specular_rays": max(1, preset.specular_rays * f // 2)})
-    options = plugin.options.model_validate(opts)
-    target = None
-    if st.options.get("__control__") == "error":
-        quality = spec.quality.model_copy(update={"level": st.level, "control": "error"})
-        target = plugin.error_target(options, quality)  # the setting's own samples start it
-        options = plugin.options_for(options, quality)
+    options, preset, target = _setting_options(plugin, st, base_opts, spec)
     backend = cls(options, threads=0)
     draw = _drawer(backend, preset, target, spec.quality.clamp)
     times, errs, loads, phase_sums, views = [], [], [], {}, []
@@ -342,7 +348,7 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
         ref_lin, ref_rgb, ref_var = refs[i]
         errs.append((rel_mse(lin, ref_lin) - ref_var, psnr8(res.rgb, ref_rgb), ssim8(res.rgb, ref_rgb)))
         views.append({"rel_mse": errs[-1][0], "samples": samples,
-                      **{k: res.stats[k] for k in ("error_estimate", "error_target", "error_spread", "error_residual")
+                      **{k: res.stats[k] for k in ("error_estimate", "error_se", "error_target")
                          if k in res.stats}})
         if i == 0:
             write_png(out / "bench" / f"{plugin.name}_{st.label}_{i}.png", res.rgb)
@@ -382,18 +388,11 @@ def reference(backend, options, cam, preset: QualityPreset, seed: int, clamp, ar
 
 
 def _drawer(backend, preset: QualityPreset, target, clamp):
-    """(camera, seed) -> RenderResult: one render of ``preset``, or renders up to an error target."""
+    """(camera, seed) -> RenderResult: one render of ``preset``, or renders up to an error target
+    as a build makes them (the same seeds)."""
     if target is None:
         return lambda cam, seed: backend.render(cam, preset, seed, clamp=clamp)
-
-    def draw(cam, seed):
-        def one(n: int, i: int):
-            q = preset.model_copy(update={"aa": n, "diffuse_rays": n, "specular_rays": n})
-            return backend.render(cam, q, seed + 104729 * i, clamp=clamp)
-
-        done = render_to_target(one, target, linear_to_srgb8)
-        return RenderResult(done.result.rgb, done.result.linear, {**done.result.stats, **done.stats()})
-    return draw
+    return lambda cam, seed: draw_to_target(backend, cam, preset, seed, target, clamp)
 
 
 def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:

@@ -204,12 +204,18 @@ def draw(ctx: _Render, cam, seed: int) -> RenderResult:
     clamp = ctx.inp.quality.clamp
     if ctx.target is None:
         return ctx.backend.render(cam, ctx.preset, seed, clamp=clamp)
+    return draw_to_target(ctx.backend, cam, ctx.preset, seed, ctx.target, clamp)
 
+
+def draw_to_target(backend, cam, preset, seed: int, target: ErrorTarget, clamp: float | None) -> RenderResult:
+    """Renders of ``preset``'s light paths, each with the samples ``target`` asks for, the first
+    with ``seed`` and the i-th with a seed of its own, until the image reaches the target (also
+    what `specsynth bench` times as ``+targeted``); the image's samples and error in its stats."""
     def one(samples: int, i: int) -> RenderResult:
-        preset = ctx.preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
-        return ctx.backend.render(cam, preset, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp)
+        q = preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
+        return backend.render(cam, q, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp)
 
-    done = render_to_target(one, ctx.target, linear_to_srgb8)
+    done = render_to_target(one, target, linear_to_srgb8)
     return replace(done.result, stats={**done.result.stats, **done.stats()})
 
 
