@@ -150,6 +150,6 @@ def test_bench_targeted_row_and_cached_references(tmp_path):
     for rows in runs:
         row = next(r for r in rows if r["setting"] == "high+targeted")
         view = row["views"][0]
-        assert view["error_target"] > 0 and view["error_estimate"] >= 0 and view["samples"] >= 2
+        assert view["error_target"] > 0 and math.isfinite(view["error_estimate"]) and view["samples"] >= 2  # an estimate may be below 0
     ref = [next(r for r in rows if r["setting"] == "reference") for rows in runs]
     assert ref[0]["seconds"] == ref[1]["seconds"]  # the cached reference's own render time
