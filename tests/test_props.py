@@ -84,8 +84,52 @@ def test_the_office_desk_room_drops_objects_on_its_desks():
     focus = [s for s in scene.stages.values() if s.focus]
     assert focus and sum(s.weight for s in focus) == pytest.approx(0.8 * sum(s.weight for s in scene.stages.values()))
     assert all(0.6 < s.height < 1.0 for s in focus)
+
+def _heights_below(tris: np.ndarray, xy: np.ndarray, z_top: float) -> np.ndarray:
+    """Per point: the highest surface under ``z_top`` straight below it (barycentric test in XY and
+    the triangle's plane; an oracle that shares nothing with the stage finder's sampling)."""
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    out = np.full(len(xy), -np.inf)
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    ok = np.abs(det) > 1e-12  # triangles that are not edge-on from above
+    a, b, c, det = a[ok], b[ok], c[ok], det[ok]
+    for i, (x, y) in enumerate(xy):
+        u = ((x - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (y - a[:, 1])) / det
+        v = ((b[:, 0] - a[:, 0]) * (y - a[:, 1]) - (x - a[:, 0]) * (b[:, 1] - a[:, 1])) / det
+        hit = (u >= 0) & (v >= 0) & (u + v <= 1)
+        z = a[hit, 2] + u[hit] * (b[hit, 2] - a[hit, 2]) + v[hit] * (c[hit, 2] - a[hit, 2])
+        z = z[z < z_top]
+        out[i] = z.max() if len(z) else -np.inf
+    return out
+
+
+@pytest.mark.parametrize("seed", [3, 11, 29])
+def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed):
+    """A room that wants only its focus stages is searched inside its focus areas: each stage found
+    lies in one, and straight below any point of it from its clearance height the first collider
+    surface is the stage itself (nothing stands in the way, the surface is there)."""
+    from specsynth.assets.meshio import read_mesh
+
+    from specsynth.spec.models import SceneRef
+
+    ref = SceneRef(name="random_room", stages=["focus"], room={"kinds": ["office_desk"]})
+    scene = load_scene(ref, Path("."), variant=seed, clearance=0.6)
+    solid = [m for m in scene.meshes if scene.colliders is None or m.name in scene.colliders]
+    tris = np.concatenate([(read_mesh(m.mesh_path).vertices @ m.matrix[:3, :3].T + m.matrix[:3, 3])[read_mesh(m.mesh_path).faces]
+                           for m in solid])
+    assert scene.stages
+    for st in scene.stages.values():
+        poly = np.array(st.polygon)
+        lo, hi = poly.min(0), poly.max(0)
+        g = np.stack(np.meshgrid(np.linspace(lo[0] + 0.005, hi[0] - 0.005, 9), np.linspace(lo[1] + 0.005, hi[1] - 0.005, 9)),
+                     -1).reshape(-1, 2)
+        below = _heights_below(tris, g, st.height + 0.6)
+        assert np.abs(below - st.height).max() <= 0.004, st
+
+
+def test_the_office_desk_room_drops_objects_on_its_focus_areas_alone():
     only = load_scene(_ref("office_desk", ["focus"]), Path("."))
-    assert sorted(only.stages) == sorted(s.name for s in focus)
+    assert only.stages and all(s.focus and 0.6 < s.height < 1.0 for s in only.stages.values())
 
 
 def _ref(name: str, stages):

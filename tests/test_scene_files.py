@@ -236,6 +236,41 @@ def test_largest_rectangle_matches_brute_force(seed):
         assert m[a : c + 1, b : d + 1].all() and (c - a + 1) * (d - b + 1) == area
 
 
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), side=st.integers(1, 4))
+def test_largest_fitting_rectangle_is_the_best_with_both_sides_long_enough(seed, side):
+    """A stage is the rectangle of free cells at least ``side`` cells on both sides whose m x m
+    squares' corners cover the most (brute force over every rectangle), and it exists exactly when
+    one with both sides long enough does: a long thin strip never hides a stage-sized patch."""
+    from specsynth.scenes.autostage import largest_fitting
+
+    rng = np.random.default_rng(seed)
+    m = rng.random((int(rng.integers(1, 10)), int(rng.integers(1, 10)))) < rng.uniform(0.4, 0.97)
+    best = 0
+    for r0, c0 in np.ndindex(m.shape):
+        for r1 in range(r0 + side - 1, m.shape[0]):
+            for c1 in range(c0 + side - 1, m.shape[1]):
+                if m[r0 : r1 + 1, c0 : c1 + 1].all():
+                    best = max(best, (r1 - r0 + 2 - side) * (c1 - c0 + 2 - side))
+    area, a, b, c, d = largest_fitting(m, side)
+    assert (area > 0) == (best > 0)
+    if area:
+        assert m[a : c + 1, b : d + 1].all() and min(c - a + 1, d - b + 1) >= side
+        assert (c - a + 2 - side) * (d - b + 2 - side) == best and area == (c - a + 1) * (d - b + 1)
+
+
+def test_a_stage_is_found_beside_a_long_thin_strip():
+    """A free L at 2 cm cells: a 48 x 6 cell strip (the largest rectangle, 12 cm: too thin to be a
+    stage) and a 12 x 16 patch at its end: the patch is the stage."""
+    from specsynth.scenes.autostage import AutoStageParams, _rectangles
+
+    free = np.zeros((20, 50), bool)
+    free[0:6, 1:49] = True
+    free[6:16, 1:13] = True
+    stages = _rectangles(free, np.zeros(free.shape), np.zeros(3), 0.02, AutoStageParams())
+    assert stages and all(min(np.ptp(np.array(s.polygon), axis=0)) >= 0.2 - 1e-9 for s in stages)
+
+
 def _panel(yaw: float, x: float, z0: float, z1: float, width: float = 1.2) -> np.ndarray:
     """An open vertical quad (two triangles, no top or bottom face) across the floor at x."""
     c, s_ = np.cos(yaw), np.sin(yaw)

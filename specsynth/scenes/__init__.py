@@ -426,7 +426,7 @@ def load_scene(ref, spec_dir: Path, cache: Path | None = None, clearance: float 
             if m.collide:
                 colliders.append(name)
     if sf.auto_stages:
-        stages = _auto_stages(path, meshes, colliders, clearance)
+        stages = _auto_stages(path, meshes, colliders, clearance, _focus_windows(ref, sf))
     else:
         stages = {s.name: _stage(s) for s in sf.stages}
     stages = _focus_weights(stages, sf)
@@ -499,16 +499,41 @@ def _focus_weights(stages: dict[str, Stage], sf: SceneFile) -> dict[str, Stage]:
     return {n: replace(st, weight=w_focus if n in focus else w_other, focus=n in focus) for n, st in stages.items()}
 
 
-def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], clearance: float | None) -> dict[str, Stage]:
+def _focus_windows(ref, sf: SceneFile) -> list[tuple[float, float, float, float]] | None:
+    """The focus areas' XY boxes when a reference wants only its focus stages (then no stage
+    outside them is ever used, and the search stays inside them), else None: the whole scene."""
+    if getattr(ref, "stages", None) != [FOCUS] or not sf.focus:
+        return None
+    boxes = []
+    for area in sf.focus:
+        xs, ys = [p[0] for p in area.polygon], [p[1] for p in area.polygon]
+        boxes.append((min(xs), min(ys), max(xs), max(ys)))
+    return boxes
+
+
+def _meets(vertices: np.ndarray, window: tuple[float, float, float, float]) -> bool:
+    """Whether the XY bounding box of ``vertices`` meets ``window`` (x0, y0, x1, y1)."""
+    lo, hi = vertices[:, :2].min(0), vertices[:, :2].max(0)
+    return bool(hi[0] >= window[0] and lo[0] <= window[2] and hi[1] >= window[1] and lo[1] <= window[3])
+
+
+def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], clearance: float | None,
+                 windows: list[tuple[float, float, float, float]] | None = None) -> dict[str, Stage]:
     solid = set(colliders)
     tris = []
     for m in meshes:
         if m.name in solid:
             data = read_mesh(m.mesh_path)
             T = m.matrix
-            tris.append((data.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3])[data.faces])
+            v = data.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+            if windows is None or any(_meets(v, w) for w in windows):
+                tris.append(v[data.faces])
     params = autostage.AutoStageParams() if clearance is None else autostage.AutoStageParams(clearance=clearance)
-    found = autostage.find_stages(np.concatenate(tris) if tris else np.zeros((0, 3, 3)), params)
+    everything = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+    if windows is None:
+        found = autostage.find_stages(everything, params)
+    else:
+        found = autostage.unique_names([st for w in windows for st in autostage.find_stages(everything, params, w)])
     if not found:
         raise SceneError(
             f"{path}: stages: none found automatically (no upward surface of at least "

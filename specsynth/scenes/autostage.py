@@ -26,8 +26,10 @@ import numpy as np
 from .types import Stage
 
 # Part of the fingerprint of every scene whose stages are found: bump when the same geometry can
-# give other stages. 2: vertical triangles as spans.
-VERSION = 2
+# give other stages. 2: vertical triangles as spans. 3: a scene that wants only its focus stages is searched
+# inside its focus areas, and a stage is the largest rectangle at least min_side on both sides (not the
+# largest one, which could be a strip too thin to keep).
+VERSION = 3
 MAX_SAMPLES = 8_000_000  # the sampling spacing grows past this, so huge scenes stay bounded
 MAX_GRID_CELLS = 400 * 400  # likewise for the XY grid
 
@@ -187,17 +189,82 @@ def largest_rectangle(mask: np.ndarray) -> tuple[int, int, int, int, int]:
     return (int(best), r - int(h[r, c]) + 1, int(left[r, c]), r, int(right[r, c]))
 
 
-def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams()) -> list[Stage]:
-    """Stages of a scene from its collider triangles (T, 3, 3), world metres, +Z up."""
+def crop(triangles: np.ndarray, window: tuple[float, float, float, float]) -> np.ndarray:
+    """The triangles whose XY bounding box meets ``window`` (x0, y0, x1, y1)."""
+    xy_lo, xy_hi = triangles[:, :, :2].min(1), triangles[:, :, :2].max(1)
+    keep = ((xy_hi[:, 0] >= window[0]) & (xy_lo[:, 0] <= window[2])
+            & (xy_hi[:, 1] >= window[1]) & (xy_lo[:, 1] <= window[3]))
+    return triangles[keep]
+
+
+def _clip_polygon(poly: list[np.ndarray], window) -> list[np.ndarray]:
+    """A convex polygon (3D points) cut to the XY ``window`` by its four half-planes (Sutherland and
+    Hodgman); z follows the polygon's plane."""
+    for axis, bound, keep_below in ((0, window[0], False), (0, window[2], True), (1, window[1], False),
+                                    (1, window[3], True)):
+        out = []
+        for a, b in zip(poly, poly[1:] + poly[:1]):
+            ina = a[axis] <= bound if keep_below else a[axis] >= bound
+            inb = b[axis] <= bound if keep_below else b[axis] >= bound
+            if ina:
+                out.append(a)
+            if ina != inb:
+                t = (bound - a[axis]) / (b[axis] - a[axis])
+                out.append(a + t * (b - a))
+        poly = out
+        if not poly:
+            break
+    return poly
+
+
+def clip_large(triangles: np.ndarray, window, max_area: float = 0.01) -> np.ndarray:
+    """Triangles over ``max_area`` square metres (a floor, a table top) that reach outside ``window``
+    cut to it and fanned into triangles again: samples are then drawn only where they count. Steep
+    triangles are left whole: they become spans, which the window selects one by one."""
+    cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    xy_lo, xy_hi = triangles[:, :, :2].min(1), triangles[:, :, :2].max(1)
+    out_of = ((xy_lo[:, 0] < window[0]) | (xy_hi[:, 0] > window[2]) | (xy_lo[:, 1] < window[1])
+              | (xy_hi[:, 1] > window[3]))
+    big = (area > max_area) & out_of & (np.abs(cross[:, 2]) >= 0.5 * 2 * area)
+    pieces = []
+    for tri in triangles[big]:
+        poly = _clip_polygon(list(tri), window)
+        pieces += [(poly[0], poly[k], poly[k + 1]) for k in range(1, len(poly) - 1)]
+    return np.concatenate([triangles[~big], np.asarray(pieces, np.float64).reshape(-1, 3, 3)])
+
+
+def _inside(xy: np.ndarray, window) -> np.ndarray:
+    return (xy[:, 0] >= window[0]) & (xy[:, 0] <= window[2]) & (xy[:, 1] >= window[1]) & (xy[:, 1] <= window[3])
+
+
+def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams(),
+                window: tuple[float, float, float, float] | None = None) -> list[Stage]:
+    """Stages of a scene from its collider triangles (T, 3, 3), world metres, +Z up; with ``window``
+    (x0, y0, x1, y1), only the stages inside it. A cell's verdict depends only on the geometry
+    over it, so a window sees what the whole scene would there, at a fraction of the samples
+    (a dressed room's desk is a twentieth of its area)."""
     triangles = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
+    if window is not None and len(triangles):
+        triangles = clip_large(crop(triangles, window), window)
     if len(triangles) == 0:
         return []
     lo = triangles.reshape(-1, 3).min(0)
     hi = triangles.reshape(-1, 3).max(0)
+    if window is not None:  # the grid spans the window only
+        lo[:2] = np.maximum(lo[:2], window[:2])
+        hi[:2] = np.minimum(hi[:2], window[2:])
     cell = max(params.cell, math.sqrt((hi[0] - lo[0]) * (hi[1] - lo[1]) / MAX_GRID_CELLS))
     vertical, rest = split_vertical(triangles, cell / 4)
     pts, normals = sample_triangles(rest, cell / 2)
     span_xy, span_lo, span_hi = vertical_spans(vertical, cell / 2)
+    if window is not None:
+        kept = _inside(pts, window)
+        pts, normals = pts[kept], normals[kept]
+        kept = _inside(span_xy, window)
+        span_xy, span_lo, span_hi = span_xy[kept], span_lo[kept], span_hi[kept]
+        if len(pts) == 0:
+            return []
     shape = (int((hi[1] - lo[1]) / cell) + 1, int((hi[0] - lo[0]) / cell) + 1)
 
     def cells(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -244,12 +311,42 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
         free = _erode(support & ~blocked, int(math.ceil(params.margin / cell)))
         origin = lo + np.array([c0 * cell, r0 * cell, 0.0])
         stages += _rectangles(free, top, origin, cell, params)
+    return unique_names(stages)
+
+
+def unique_names(stages: list[Stage]) -> list[Stage]:
+    """Two levels a hair apart, or two windows at one height, could give one name: the second and
+    later get a suffix, in order."""
     seen: dict[str, int] = {}
-    for i, st in enumerate(stages):  # two levels a hair apart could round to one name
+    out = []
+    for st in stages:
         seen[st.name] = seen.get(st.name, 0) + 1
-        if seen[st.name] > 1:
-            stages[i] = Stage(name=f"{st.name}_{seen[st.name]}", polygon=st.polygon, height=st.height)
-    return stages
+        out.append(st if seen[st.name] == 1 else Stage(name=f"{st.name}_{seen[st.name]}", polygon=st.polygon,
+                                                        height=st.height))
+    return out
+
+
+def square_corners(mask: np.ndarray, m: int) -> np.ndarray:
+    """(R - m + 1, C - m + 1): where an all-True m x m square of ``mask`` has its first row and column."""
+    rows, cols = mask.shape
+    if m > rows or m > cols:
+        return np.zeros((0, 0), bool)
+    s = np.pad(mask.astype(np.int32).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+    box = s[m:, m:] - s[:-m, m:] - s[m:, :-m] + s[:-m, :-m]
+    return box == m * m
+
+
+def largest_fitting(mask: np.ndarray, m: int) -> tuple[int, int, int, int, int]:
+    """(area, row0, col0, row1, col1) of a large all-True rectangle at least ``m`` cells on both
+    sides, none when there is none. A rectangle of that size is all True exactly when the corners
+    of all its m x m squares are, so it is the largest rectangle of the corners grown by m - 1:
+    never a long thin strip that would end the search while a stage-sized patch is left."""
+    corners = square_corners(mask, m)
+    if not corners.any():
+        return (0, 0, 0, -1, -1)
+    _, a, b, c, d = largest_rectangle(corners)
+    c, d = c + m - 1, d + m - 1
+    return ((c - a + 1) * (d - b + 1), a, b, c, d)
 
 
 def _rectangles(free: np.ndarray, top: np.ndarray, lo: np.ndarray, cell: float, params: AutoStageParams) -> list[Stage]:
@@ -261,8 +358,8 @@ def _rectangles(free: np.ndarray, top: np.ndarray, lo: np.ndarray, cell: float, 
             break
         ys, xs = np.nonzero(free)  # search only the bounding box of what is left
         r0, c0 = ys.min(), xs.min()
-        area, a, b, c, d = largest_rectangle(free[r0 : ys.max() + 1, c0 : xs.max() + 1])
-        if area == 0 or (c - a + 1) < min_cells or (d - b + 1) < min_cells or area * cell * cell < params.min_area:
+        area, a, b, c, d = largest_fitting(free[r0 : ys.max() + 1, c0 : xs.max() + 1], min_cells)
+        if area == 0 or area * cell * cell < params.min_area:
             break
         a, b, c, d = a + r0, b + c0, c + r0, d + c0
         free[a : c + 1, b : d + 1] = False
