@@ -29,8 +29,8 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # 5: framed photographs on the walls. 6: dressed work surfaces (props), office_desk and lab kinds, floor
 # items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints). 7: more
 # magazines than pages, a stronger desk lamp, the panel over the desk the brightest. 8: a flat item lies
-# on the flat items it overlaps, not on every one placed before it.
-GENERATOR_VERSION = 8
+# on the flat items it overlaps, not on every one placed before it. 9: relief and roughness on a grid of 0.05.
+GENERATOR_VERSION = 9
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -300,7 +300,7 @@ def redress(rng, item: furniture.FurnitureItem, cache: Path, woods: list, felt) 
             credits.append(felt.credit)
         elif woods and any(w in low for w in WOOD_WORDS):
             t = woods[int(rng.integers(len(woods)))]
-            overrides[name] = SceneMaterial(texture=str(t.path), uv_scale=1.0, roughness=float(rng.uniform(0.3, 0.6)),
+            overrides[name] = SceneMaterial(texture=str(t.path), uv_scale=1.0, roughness=_step(rng.uniform(0.3, 0.6)),
                                             base_color=_tint(rng), **_relief(rng, cache, "wood", (0.15, 0.5)))
             credits.append(t.credit)
     return overrides, credits
@@ -427,8 +427,15 @@ def _relief(rng, cache: Path, kind: str, strength: tuple[float, float]) -> dict:
     if not maps:
         return {}
     m = maps[int(rng.integers(len(maps)))]
-    return {"normal_map": f"normals:{m.name}", "normal_strength": round(float(rng.uniform(*strength)), 3),
-            "roughness_variation": round(float(rng.uniform(0.08, 0.25)), 3)}
+    return {"normal_map": f"normals:{m.name}", "normal_strength": _step(rng.uniform(*strength)),
+            "roughness_variation": _step(rng.uniform(0.08, 0.25))}
+
+
+def _step(x: float, step: float = 0.05) -> float:
+    """``x`` on a grid of ``step``: the maps derived from a material's parameters (scaled normals,
+    roughness) are cached by those parameters, and a few hundred grid points are reused from room
+    to room where continuous draws would make new maps for every room."""
+    return round(round(float(x) / step) * step, 6)
 
 
 def _tint(rng, spread: float = 0.06, level: tuple[float, float] = (0.85, 1.0)) -> tuple[float, float, float]:
@@ -452,7 +459,7 @@ def _shell(rng, W: float, D: float, H: float, window, cache: Path, library,
                                   **_relief(rng, cache, "fabric", (0.3, 0.8)))
     else:
         floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, base_color=_tint(rng),
-                                  roughness=float(rng.uniform(0.4, 0.75)), **_relief(rng, cache, floor_kind, (0.15, 0.5)))
+                                  roughness=_step(rng.uniform(0.4, 0.75)), **_relief(rng, cache, floor_kind, (0.15, 0.5)))
     paint = PAINTS[int(rng.integers(len(PAINTS)))]
     wall_mat = SceneMaterial(texture=str(wall_t.path), base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85,
                              specular=0.3, **_relief(rng, cache, "stone" if "brick" in wall_t.name else "wall", (0.1, 0.4)))
