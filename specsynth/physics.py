@@ -561,6 +561,18 @@ def _overlaps(a: np.ndarray, b: np.ndarray, gap: float) -> bool:
     return bool(np.all(a[0] < b[1] + gap) and np.all(b[0] < a[1] + gap))
 
 
+STAND_GAP = 0.001  # metres between a standing object's lowest point and the stage: no start in contact
+
+
+def _start_height(arrangements: Arrangements, rng: np.random.Generator) -> float:
+    """Height of an object's lowest point above the stage at the start. A standing object draws no
+    number, so that its other draws are the same whatever drop_height says."""
+    if arrangements.placement == "stand":
+        return STAND_GAP
+    lo_drop, hi_drop = arrangements.drop_height
+    return float(rng.uniform(lo_drop, hi_drop))
+
+
 def _initial_pose(
     body: _Body,
     stage: Stage,
@@ -580,8 +592,7 @@ def _initial_pose(
     R_world_body = R_world_model @ m.body_from_model[:3, :3].T
     offsets = m.hull @ R_world_body.T
     footprint = float(np.linalg.norm(offsets[:, :2], axis=1).max())
-    lo_drop, hi_drop = arrangements.drop_height
-    z = stage.height - float(offsets[:, 2].min()) + float(rng.uniform(lo_drop, hi_drop))
+    z = stage.height - float(offsets[:, 2].min()) + _start_height(arrangements, rng)
 
     pos = None
     for _ in range(_PLACEMENT_TRIES):

@@ -110,6 +110,7 @@ class ArrangementDraws(Cut):
     """How each arrangement is dropped (how many there are is the plan's, ``PLANNED``)."""
 
     drop_height: Annotated[tuple[float, float], From("drop_height")]
+    placement: Annotated[Literal["drop", "stand"], From("placement")]
     physics: Annotated[Physics, From("physics")]
     distractors: Annotated[Distractors, From("distractors")]
 

@@ -337,7 +337,13 @@ class Distractors(Strict):
 
 class Arrangements(Strict):
     count: int = Field(10, ge=1, le=10_000_000, description="Number of arrangements (physics drops).")
-    drop_height: FloatRange(0.0, 10.0) = Field((0.05, 0.5), description="Initial height above the stage, metres.")
+    drop_height: FloatRange(0.0, 10.0) = Field((0.05, 0.5), description="Initial height above the stage, metres "
+                                                "(with placement: drop).")
+    placement: Literal["drop", "stand"] = Field(
+        "drop", description="How objects and distractors start. drop: drop_height above the stage, falling (a tall "
+        "object often lands on its side, as in the paper). stand: resting on the stage in their drawn orientation "
+        "(with objects.orientation: canonical, upright as the model stands), then settled by the same simulation: "
+        "as objects stand on a real desk, the LM-O test scenes' among them. drop_height is not used.")
     physics: Physics = Physics()
     distractors: Distractors = Field(Distractors(), description="Unannotated objects dropped with the targets.")
 
