@@ -38,10 +38,11 @@ def test_a_dressed_top_keeps_its_stage_area_free_and_its_flat_matter_thin(seed):
             continue
         u, v = _local(TOP, *m.transform.translation[:2])
         assert abs(u) < TOP.width / 2 and abs(v) < TOP.depth / 2 + 0.02, m.name  # on the top
-        if m.collide:  # nothing stands on the stage area (the stage finder checks the geometry itself)
+        kind = m.name.split("_")[1]
+        if m.collide and kind != "board":  # nothing stands on the stage area (the stage finder checks the geometry)
             assert not (u0 < u < u1 and v0 < v < v1), m.name
-        if m.name.split("_")[1] in ("page", "magazine", "board"):
-            assert not m.collide and m.source.box[2] <= 0.002
+        if kind in ("page", "magazine", "board"):
+            assert m.collide == (kind == "board") and m.source.box[2] <= 0.002
             assert TOP.z < m.transform.translation[2] < TOP.z + 0.02
     assert any(m.name.split("_")[1] == "monitor" for m in d.meshes)
 
@@ -107,7 +108,8 @@ def _heights_below(tris: np.ndarray, xy: np.ndarray, z_top: float) -> np.ndarray
 def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed):
     """A room that wants only its focus stages is searched inside its focus areas: each stage found
     lies in one, and straight below any point of it from its clearance height the first collider
-    surface is the stage itself (nothing stands in the way, the surface is there)."""
+    surface is the stage itself (nothing stands in the way; the surface is there, but for holes
+    finer than the search's cells)."""
     from specsynth.assets.meshio import read_mesh
 
     from specsynth.spec.models import SceneRef
@@ -124,7 +126,31 @@ def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed):
         g = np.stack(np.meshgrid(np.linspace(lo[0] + 0.005, hi[0] - 0.005, 9), np.linspace(lo[1] + 0.005, hi[1] - 0.005, 9)),
                      -1).reshape(-1, 2)
         below = _heights_below(tris, g, st.height + 0.6)
-        assert np.abs(below - st.height).max() <= 0.004, st
+        assert (below <= st.height + 0.004).all(), st  # nothing in the way
+        # the surface is there, but for holes finer than the 2 cm cells (a desk's cable grommet)
+        assert np.mean(np.abs(below - st.height) <= 0.004) >= 0.95, st
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_marker_board_lies_under_the_stage_area_inside_the_top(seed):
+    """boards: 1 puts a colliding marker board under every stage area (as in every LM-O test
+    photograph), wholly on the top whatever its turn, on at most a magazine's thickness."""
+    d = props.dress(TOP, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5, board=1.0)
+    (board,) = [m for m in d.meshes if m.name.split("_")[1] == "board"]
+    assert board.collide
+    w, depth, t = board.source.box
+    yaw = math.radians(board.transform.rotation[2] - TOP.yaw)
+    corners = [(su * w / 2, sv * depth / 2) for su in (-1, 1) for sv in (-1, 1)]
+    u, v = _local(TOP, *board.transform.translation[:2])
+    for cu, cv in corners:
+        cu, cv = u + cu * math.cos(yaw) - cv * math.sin(yaw), v + cu * math.sin(yaw) + cv * math.cos(yaw)
+        assert abs(cu) < TOP.width / 2 and abs(cv) < TOP.depth / 2
+    u0, v0, u1, v1 = d.stage
+    assert abs(u - (u0 + u1) / 2) < 0.3 and abs(v - (v0 + v1) / 2) < 0.3
+    assert TOP.z < board.transform.translation[2] - t / 2 < TOP.z + 0.004
+    assert props.dress(TOP, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5, board=0.0).meshes
+    assert not [m for m in props.dress(TOP, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5,
+                                       board=0.0).meshes if m.name.split("_")[1] == "board"]
 
 
 def test_the_office_desk_room_drops_objects_on_its_focus_areas_alone():

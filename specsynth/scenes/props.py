@@ -6,7 +6,8 @@ photograph, a keyboard and a mouse, a desk lamp with its spot light, stacks of b
 catalogue items (mugs, bottles, plants, phones, tools), cables, and flat printed matter (pages,
 magazines, a board of fiducial markers) lying everywhere, the stage area included, as under the
 LM-O objects. Flat printed matter is under 2 mm thick and does not collide (objects rest on the
-top through it, sinking at most that far), so it never changes where a stage is.
+top through it, sinking at most that far), so it never changes where a stage is; only a marker board
+collides, so that the objects stand on it and the stage is found on its top.
 
 Everything comes from one ``numpy`` generator: the same seed gives the same desk everywhere.
 Coordinates: a top's local frame has ``u`` along its width and ``v`` towards its back (the wall
@@ -28,6 +29,7 @@ from ..model.colour import kelvin_rgb
 from .models import LightDef, SceneMaterial, SceneMesh, Transform
 
 PAPER = 0.0002  # metres: one sheet
+BOARD = 0.0008  # metres: a marker board (printed card)
 FLAT_STEP = 0.0003  # each flat item lies this much above the one before: no coplanar faces
 ITEM_GAP = 0.02  # free space kept between placed items
 # Catalogue items by what they are, from their names.
@@ -38,6 +40,8 @@ ITEM_GROUPS = {
     "office": r"penbox|calendar|letter tray|ruler|scissors|text marker|tape|glasses|keys|stapler",
     "tool": r"drill|hammer|screwdriver|tool\b|scale",
     "floor": r"dustbin|recycling bin|backpack|handbag|briefcase|cardboard box|box$|basketball|soccer ball",
+    "toy": r"car model|doll|teddy|toy train|wood toy|rubik|puzzle|biplane|card game|deer",
+    "computer": r"laptop|ibook|printer",
 }
 LAMPS = ("Scopia#desk_lamp1", "Scopia#desk_lamp2", "Blend Swap CC-0#desklamp")
 CABLE_COLOURS = ((0.02, 0.02, 0.02), (0.03, 0.03, 0.035), (0.85, 0.85, 0.83), (0.25, 0.25, 0.27))
@@ -127,7 +131,8 @@ class _Dresser:
 
     # ------------------------------------------------------------------ flat printed matter
 
-    def flat(self, kind: str, w: float, d: float, u: float, v: float, yaw: float, thickness: float) -> None:
+    def flat(self, kind: str, w: float, d: float, u: float, v: float, yaw: float, thickness: float,
+             collide: bool = False) -> None:
         p = self.printed(kind)
         radius = math.hypot(w, d) / 2
         # on the highest flat item it may overlap (a bounding circle), else on the top itself
@@ -135,7 +140,7 @@ class _Dresser:
         z0 = max(below, default=self.top.z) + FLAT_STEP
         mat = SceneMaterial(texture=str(p.path), uv_scale=(1.0 / w, 1.0 / d), roughness=float(self.rng.uniform(0.5, 0.9)),
                             specular=0.3 if kind != "magazine" else 0.6)
-        self.put(kind, {"box": (w, d, thickness)}, u, v, z0 + thickness / 2, yaw, mat, collide=False)
+        self.put(kind, {"box": (w, d, thickness)}, u, v, z0 + thickness / 2, yaw, mat, collide=collide)
         self.flats.append((u, v, radius, z0 + thickness))
 
     # ------------------------------------------------------------------ things that stand
@@ -257,7 +262,8 @@ def stage_area(top: Top, rng) -> tuple[float, float, float, float]:
 
 def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.35) -> Dressing:
     """Clutter on one work surface around a free stage area. ``density`` scales every count (0:
-    nothing); ``board`` x ``density`` is the chance of a marker board lying on the stage area."""
+    nothing); ``board`` is the chance of a marker board lying under the stage area (LM-O's test
+    photographs have one under every object)."""
     stage = stage_area(top, rng)
     if density <= 0:
         return Dressing(stage=stage)
@@ -276,20 +282,54 @@ def _count(rng, lo: float, hi: float, density: float) -> int:
     return int(round(density * float(rng.uniform(lo, hi))))
 
 
+PAGE, MAGAZINE = (0.21, 0.297), (0.21, 0.28)  # metres: A4, a magazine
+
+
+def _paper(dr: _Dresser, area, count: int, page_share: float = 0.35, avoid=None) -> None:
+    """``count`` pages and magazines with their centres in ``area`` (local u0, v0, u1, v1); with
+    ``avoid`` (a rectangle), none within half a page of it (a few tries each, else left out)."""
+    rng = dr.rng
+    for _ in range(count):
+        kind = "page" if rng.random() < page_share else "magazine"
+        w, d = PAGE if kind == "page" else MAGAZINE
+        for _ in range(6):
+            u, v = float(rng.uniform(area[0], area[2])), float(rng.uniform(area[1], area[3]))
+            if avoid is None or not (avoid[0] - 0.1 < u < avoid[2] + 0.1 and avoid[1] - 0.1 < v < avoid[3] + 0.1):
+                dr.flat(kind, w, d, u, v, float(rng.uniform(-40, 40)), PAPER if kind == "page" else 0.0015)
+                break
+
+
 def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
-    """Pages and magazines all over the top, half of them on or over the stage area (objects stand
-    on paper on real desks), and sometimes a marker board under the stage."""
+    """Pages and magazines all over the top; with the chance ``board``, a marker board under the
+    stage area as in LM-O's photographs: lying on magazines that show round its edges, and with a
+    magazine or page on its middle, under the objects. Without a board, half the paper lies on or
+    over the stage area (objects stand on paper on real desks)."""
     top, rng = dr.top, dr.rng
-    if rng.random() < min(0.9, board * density):  # as big as LM-O's, around the objects
-        w = float(rng.uniform(0.55, 0.8))
-        dr.flat("board", w, w / printed.SIZES["board"][0] * printed.SIZES["board"][1], (stage[0] + stage[2]) / 2,
-                (stage[1] + stage[3]) / 2, float(rng.uniform(-15, 15)), 0.0008)
-    for k in range(_count(rng, 4, 10, density)):
-        kind = "page" if rng.random() < 0.35 else "magazine"
-        w, d = (0.21, 0.297) if kind == "page" else (0.21, 0.28)
-        area = stage if k % 2 else (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
-        u, v = float(rng.uniform(area[0], area[2])), float(rng.uniform(area[1], area[3]))
-        dr.flat(kind, w, d, u, v, float(rng.uniform(-40, 40)), PAPER if kind == "page" else 0.0015)
+    whole = (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
+    n = _count(rng, 4, 10, density)
+    if rng.random() >= board:
+        _paper(dr, stage, n // 2)
+        _paper(dr, whole, n - n // 2)
+        return
+    aspect = printed.SIZES["board"][1] / printed.SIZES["board"][0]
+    w = min(max(float(rng.uniform(0.55, 0.8)), stage[2] - stage[0] + 0.12), top.width - 0.2, (top.depth - 0.2) / aspect)
+    d = w * aspect
+    yaw = float(rng.uniform(-15, 15))
+    c, s_ = math.cos(math.radians(yaw)), abs(math.sin(math.radians(yaw)))
+    hu, hv = (w * c + d * s_) / 2 + 0.02, (w * s_ + d * c) / 2 + 0.02  # the turned board's half extents
+    # On the top, never over its edge (a collider in the air would be a stage in the air).
+    cu = float(np.clip((stage[0] + stage[2]) / 2, -top.width / 2 + hu, max(-top.width / 2 + hu, top.width / 2 - hu)))
+    cv = float(np.clip((stage[1] + stage[3]) / 2, -top.depth / 2 + hv, max(-top.depth / 2 + hv, top.depth / 2 - hv)))
+    for su, sv in ((1, 0), (-1, 0), (0, 1), (0, -1))[: int(rng.integers(1, 5))]:  # half out from under an edge
+        u, v = cu + su * (w / 2 + float(rng.uniform(-0.05, 0.05))), cv + sv * (d / 2 + float(rng.uniform(-0.05, 0.05)))
+        dr.flat("magazine", *MAGAZINE, u + sv * float(rng.uniform(-0.15, 0.15)), v + su * float(rng.uniform(-0.1, 0.1)),
+                float(rng.uniform(-40, 40)), 0.0015)
+    # The board collides: objects stand on it (the stage is found on its top), not sunk in paper.
+    dr.flat("board", w, d, cu, cv, yaw, BOARD, collide=True)
+    if rng.random() < 0.7:  # a page on its middle, under the objects
+        dr.flat("page", *PAGE, cu + float(rng.uniform(-0.05, 0.05)), cv + float(rng.uniform(-0.05, 0.05)),
+                float(rng.uniform(-30, 30)), PAPER)
+    _paper(dr, whole, n - n // 2, avoid=(cu - w / 2, cv - d / 2, cu + w / 2, cv + d / 2))
 
 
 def _back_row(dr: _Dresser, stage, density: float) -> None:
@@ -314,7 +354,7 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
         spot = lay.place(max(size[:2]), max(size[:2]), back)
         if spot is not None:
             dr.box(spot[0], spot[1], float(rng.uniform(-20, 20)), size)
-    _catalogue_items(dr, back, ("plant", "device", "drink"), _count(rng, 1, 3, density))
+    _catalogue_items(dr, back, ("plant", "device", "drink", "toy", "computer"), _count(rng, 2, 5, density))
 
 
 def _sides(dr: _Dresser, stage, density: float) -> None:
@@ -331,7 +371,7 @@ def _sides(dr: _Dresser, stage, density: float) -> None:
             if mspot is not None:
                 dr.mouse(mspot[0], mspot[1], yaw + float(rng.uniform(-20, 20)))
     for zone in zones:
-        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant"), _count(rng, 2, 5, density))
+        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant", "toy"), _count(rng, 2, 5, density))
         if rng.random() < 0.4 * density:
             spot = lay.place(0.26, 0.3, zone)
             if spot is not None:

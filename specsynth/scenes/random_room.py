@@ -30,7 +30,8 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints). 7: more
 # magazines than pages, a stronger desk lamp, the panel over the desk the brightest. 8: a flat item lies
 # on the flat items it overlaps, not on every one placed before it. 9: relief and roughness on a grid of 0.05.
-GENERATOR_VERSION = 9
+# 10: a marker board (room.boards) lies on magazines with a page on it, and collides; toys and laptops on desks.
+GENERATOR_VERSION = 10
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -71,6 +72,7 @@ class RoomParams:
     pictures: tuple[int, int] = (1, 3)  # framed photographs on the walls
     density: float = 1.0  # how much stands on work surfaces and the floor (props.dress); 0: nothing
     sun: float = 0.6  # chance of direct sunlight through the window
+    boards: float = 0.35  # chance of a marker board under a dressed desk's stage area
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
@@ -194,7 +196,7 @@ def is_worktop(item: furniture.FurnitureItem) -> bool:
     return top is not None and 0.6 <= top <= 1.0 and item.size[0] >= 0.9 and item.size[1] >= 0.5
 
 
-def dress_worktops(rng, placed: list[Placed], cache: Path, density: float):
+def dress_worktops(rng, placed: list[Placed], cache: Path, density: float, boards: float = 0.35):
     """Every work surface dressed -> (meshes, lights, credits, focus areas: its stage area)."""
     meshes, lights, credits, focus = [], [], [], []
     for k, p in enumerate(placed):
@@ -203,7 +205,7 @@ def dress_worktops(rng, placed: list[Placed], cache: Path, density: float):
         # A piece against a wall has its back there; one in the middle is worked at from either side.
         yaw = p.yaw if not p.middle else p.yaw + 180.0 * int(rng.integers(2))
         top = props.Top(p.x, p.y, p.item.size[0], p.item.size[1], yaw, float(open_top(p.item)))
-        d = props.dress(top, rng, cache, f"desk{k:02d}", density)
+        d = props.dress(top, rng, cache, f"desk{k:02d}", density, board=boards)
         meshes += d.meshes
         lights += d.lights
         credits += d.credits
@@ -550,7 +552,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     pieces, dressed = _furniture_meshes(rng, placed, cache, library)
     meshes += pieces
     credits += [p.item.credit for p in placed] + dressed
-    desk_meshes, desk_lights, desk_credits, focus = dress_worktops(rng, placed, cache, params.density)
+    desk_meshes, desk_lights, desk_credits, focus = dress_worktops(rng, placed, cache, params.density, params.boards)
     meshes += desk_meshes
     credits += desk_credits
     small = clutter(rng, placed, furniture.small_items(), params.clutter)

@@ -204,6 +204,9 @@ class RoomOptions(Strict):
                                  "on each furniture top, [min, max]; stages are found around them.")
     pictures: IntRange(0) = Field((1, 3), description="Framed photographs (scikit-image's public-domain and CC0 "
                                      "samples) hung on the walls, [min, max].")
+    boards: float = Field(0.35, ge=0, le=1, description="Chance that a dressed desk or bench has a board of square "
+                          "fiducial markers under its stage area, lying on magazines, the objects standing on it: 1 for "
+                          "test photographs like LM-O's, which show one under every object.")
 
     @field_validator("clutter")
     @classmethod
