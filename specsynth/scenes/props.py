@@ -326,8 +326,8 @@ def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
                 float(rng.uniform(-40, 40)), 0.0015)
     # The board collides: objects stand on it (the stage is found on its top), not sunk in paper.
     dr.flat("board", w, d, cu, cv, yaw, BOARD, collide=True)
-    if rng.random() < 0.7:  # a page on its middle, under the objects
-        dr.flat("page", *PAGE, cu + float(rng.uniform(-0.05, 0.05)), cv + float(rng.uniform(-0.05, 0.05)),
+    for _ in range(int(rng.integers(1, 3))):  # magazines open on its middle, under the objects
+        dr.flat("magazine", *MAGAZINE, cu + float(rng.uniform(-0.1, 0.1)) * w, cv + float(rng.uniform(-0.1, 0.1)) * d,
                 float(rng.uniform(-30, 30)), PAPER)
     _paper(dr, whole, n - n // 2, avoid=(cu - w / 2, cv - d / 2, cu + w / 2, cv + d / 2))
 

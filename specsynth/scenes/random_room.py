@@ -30,7 +30,7 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints). 7: more
 # magazines than pages, a stronger desk lamp, the panel over the desk the brightest. 8: a flat item lies
 # on the flat items it overlaps, not on every one placed before it. 9: relief and roughness on a grid of 0.05.
-# 10: a marker board (room.boards) lies on magazines with a page on it, and collides; toys and laptops on desks.
+# 10: a marker board (room.boards) lies on magazines with magazines open on it, and collides; toys and laptops on desks.
 GENERATOR_VERSION = 10
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {

@@ -23,7 +23,7 @@ import numpy as np
 from ...atomic import atomic_write_bytes
 from . import pictures
 
-VERSION = 2  # 2: pages with tables and charts, LM-O-like boards, more variants
+VERSION = 3  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards
 # Variants drawn per kind (a scene picks among them by its seed) and each kind's size in pixels.
 VARIANTS = {"page": 24, "magazine": 24, "board": 6, "cover": 24, "keyboard": 3, "screen": 12, "cardboard": 6,
             "poster": 8}
@@ -143,6 +143,44 @@ def _page(rng, size):
 
 
 def _magazine(rng, size):
+    """A cover (a photograph, a title, headlines, a barcode) or, as often, a magazine lying open:
+    columns of text round photographs, headings and coloured boxes, as the magazines on the LM-O
+    desk show."""
+    return _cover_page(rng, size) if rng.random() < 0.5 else _spread(rng, size)
+
+
+def _spread(rng, size):
+    from PIL import Image, ImageDraw
+
+    w, h = size
+    tint = int(rng.integers(225, 250))
+    im = Image.new("RGB", size, (tint, tint, int(tint - rng.integers(0, 12))))
+    d = ImageDraw.Draw(im)
+    credits = []
+    ink = tuple(int(v) for v in rng.integers(10, 50, 3))
+    m, cols = int(w * 0.06), int(rng.integers(2, 4))
+    col_w = (w - 2 * m) // cols
+    d.text((m, m), " ".join(_words(rng, 3)).title(), fill=_colour(rng, 0.2, 0.7), font=_font(int(h * 0.05)))
+    for c in range(cols):
+        x0, x1 = m + c * col_w + 6, m + (c + 1) * col_w - 6
+        y = m + int(h * 0.09)
+        while y < h - m - int(h * 0.06):
+            bh = int(h * rng.uniform(0.1, 0.3))
+            what = rng.choice(["text", "text", "photo", "box"])
+            if what == "photo":
+                picture, credit = _photograph(rng, (x1 - x0, bh))
+                im.paste(picture, (x0, y))
+                credits.append(credit)
+            elif what == "box":
+                d.rectangle((x0, y, x1, y + bh), fill=_colour(rng, 0.5, 1.0))
+                _text_block(d, rng, x0 + 6, y + 6, x1 - 6, y + bh - 4, int(h * 0.017), ink)
+            else:
+                _text_block(d, rng, x0, y, x1, min(y + bh, h - m), int(h * 0.017), ink)
+            y += bh + int(h * 0.02)
+    return im, credits
+
+
+def _cover_page(rng, size):
     from PIL import ImageDraw
 
     w, h = size
@@ -166,15 +204,15 @@ def _magazine(rng, size):
 
 
 def _board(rng, size):
-    """A board of square fiducial markers round a free middle, as under the LM-O objects: 7 x 5
-    cells, each a black square with a white glyph of 3 x 3 random bits."""
+    """A board of square fiducial markers round a free middle, as under the LM-O objects: 9 x 7
+    cells, each a black square with a white glyph of 4 x 4 random bits."""
     from PIL import Image, ImageDraw
 
     w, h = size
     paper = (246, 246, 243)
     im = Image.new("RGB", size, paper)
     d = ImageDraw.Draw(im)
-    cols, rows = 7, 5
+    cols, rows, n = 9, 7, 4
     cell = min(w // cols, h // rows)
     ox, oy = (w - cols * cell) // 2, (h - rows * cell) // 2
     for r in range(rows):
@@ -184,11 +222,11 @@ def _board(rng, size):
             x, y = ox + c * cell, oy + r * cell
             pad = cell // 10
             d.rectangle((x + pad, y + pad, x + cell - pad, y + cell - pad), fill=(12, 12, 12))
-            bits = rng.random((3, 3)) < 0.5
-            bits[1, 1] = True  # every glyph has its centre, so none is all black
-            s = (cell - 2 * pad) / 5
-            for i in range(3):
-                for j in range(3):
+            bits = rng.random((n, n)) < 0.5
+            bits[n // 2, n // 2] = True  # every glyph has a white bit, so none is all black
+            s = (cell - 2 * pad) / (n + 2)
+            for i in range(n):
+                for j in range(n):
                     if bits[i, j]:
                         d.rectangle((x + pad + (j + 1) * s, y + pad + (i + 1) * s, x + pad + (j + 2) * s - 1,
                                      y + pad + (i + 2) * s - 1), fill=paper)
