@@ -217,6 +217,34 @@ def test_a_low_clearance_allows_the_floor_under_the_table_and_a_high_one_forbids
     assert not any(s.contains(under)[0] for s in high)
 
 
+def _mesh_instance(tris: np.ndarray, path: Path, name: str):
+    from specsynth.assets.meshio import MeshData, write_mesh
+    from specsynth.model.ir import MeshInstance, as_tuple
+
+    write_mesh(path, MeshData(vertices=tris.reshape(-1, 3).astype(np.float32),
+                              faces=np.arange(len(tris) * 3, dtype=np.int32).reshape(-1, 3)))
+    return MeshInstance(name=name, mesh_path=str(path), mesh_key=name, pose=as_tuple(np.eye(4)))
+
+
+def test_focus_windows_search_only_there_and_fall_back_to_the_whole_scene(tmp_path):
+    """With focus windows the search keeps to them (a stage on the table, none on the floor); when
+    no stage fits in any window, the whole scene is searched (the floor's stages) rather than none."""
+    from specsynth.scenes import _auto_stages
+
+    floor = _mesh_instance(_box_tris((-2, -2, -0.05), (2, 2, 0.0)), tmp_path / "floor.ply", "floor")
+    legs = [_box_tris((x, y, 0.0), (x + 0.05, y + 0.05, 0.72)) for x in (0.5, 1.25) for y in (0.5, 1.05)]
+    table = _mesh_instance(np.concatenate([_box_tris((0.5, 0.5, 0.72), (1.3, 1.1, 0.75)), *legs]),
+                           tmp_path / "table.ply", "table")
+    meshes, solid = [floor, table], ["floor", "table"]
+    on_table = _auto_stages(tmp_path, meshes, solid, 0.8, [(0.55, 0.55, 1.25, 1.05)])
+    assert on_table and all(abs(s.height - 0.75) < 1e-6 for s in on_table.values())
+    for s in on_table.values():
+        assert all(0.55 - 1e-9 <= x <= 1.25 + 1e-9 and 0.55 - 1e-9 <= y <= 1.05 + 1e-9 for x, y in s.polygon)
+    tiny = _auto_stages(tmp_path, meshes, solid, 0.8, [(0.6, 0.6, 0.7, 0.7)])
+    assert tiny == _auto_stages(tmp_path, meshes, solid, 0.8)
+    assert any(abs(s.height) < 1e-6 for s in tiny.values())
+
+
 @pytest.mark.parametrize("seed", range(40))
 def test_largest_rectangle_matches_brute_force(seed):
     from specsynth.scenes.autostage import largest_rectangle

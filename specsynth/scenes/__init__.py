@@ -520,20 +520,24 @@ def _meets(vertices: np.ndarray, window: tuple[float, float, float, float]) -> b
 def _auto_stages(path: Path, meshes: list[MeshInstance], colliders: list[str], clearance: float | None,
                  windows: list[tuple[float, float, float, float]] | None = None) -> dict[str, Stage]:
     solid = set(colliders)
-    tris = []
+    world = []  # (vertices, faces) of each collider in world coordinates
     for m in meshes:
         if m.name in solid:
             data = read_mesh(m.mesh_path)
             T = m.matrix
-            v = data.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-            if windows is None or any(_meets(v, w) for w in windows):
-                tris.append(v[data.faces])
+            world.append((data.vertices.astype(np.float64) @ T[:3, :3].T + T[:3, 3], data.faces))
     params = autostage.AutoStageParams() if clearance is None else autostage.AutoStageParams(clearance=clearance)
-    everything = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
-    if windows is None:
-        found = autostage.find_stages(everything, params)
-    else:
-        found = autostage.unique_names([st for w in windows for st in autostage.find_stages(everything, params, w)])
+
+    def triangles(keep) -> np.ndarray:
+        tris = [v[f] for v, f in world if keep(v)]
+        return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+
+    found = []
+    if windows is not None:
+        near = triangles(lambda v: any(_meets(v, w) for w in windows))
+        found = autostage.unique_names([st for w in windows for st in autostage.find_stages(near, params, w)])
+    if not found:  # no focus areas, or no room in any: the whole scene's stages
+        found = autostage.find_stages(triangles(lambda v: True), params)
     if not found:
         raise SceneError(
             f"{path}: stages: none found automatically (no upward surface of at least "
