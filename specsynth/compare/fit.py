@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 
 from .collect import Collected
-from .distance import summary
-from .imagestats import (MIN_OBJECT_PIXELS, half_rgb8, lab_of_linear, linear_of_lab, luma, noise_level, percentiles,
-                         saturation, sharpness, srgb8_to_linear)
+from .distance import spread, summary
+from .imagestats import (MIN_OBJECT_PIXELS, colourfulness, half_rgb8, lab_of_linear, linear_of_lab, luma, noise_level,
+                         percentiles, saturation, sharpness, srgb8_to_linear)
 
 VISIB_QUANTILE = 10
 SEARCH_STEPS = 12  # bisection steps: 2^-12 of each range (0.0024 stops of exposure)
@@ -141,6 +141,8 @@ def _stat(name: str, rgb8: np.ndarray) -> float:
         return p95 - p5
     if name == "saturation":
         return saturation(half_rgb8(rgb8).astype(np.float32) / np.float32(255.0))
+    if name == "colourfulness":
+        return colourfulness(half_rgb8(rgb8).astype(np.float32) / np.float32(255.0))
     if name == "sharpness":
         return sharpness(luma(rgb8))
     return noise_level(luma(rgb8))
@@ -155,11 +157,28 @@ def _search(lin, cam: Camera, field: str, stat: str, lo: float, hi: float, targe
     return _bisect(median_at, lo, hi, target, increasing)
 
 
+COLOUR_STATS = ("saturation", "colourfulness")
+
+
+def _colour_offset(lin, cam: Camera, real: Collected, normals):
+    """Saturation factor -> how far the probe's colour is from the real images', in real spreads:
+    the offsets of its median HSV saturation and median colourfulness, summed. Both grow with the
+    factor; matching one alone can leave the other far (dark pixels count fully in HSV saturation,
+    barely in colourfulness)."""
+    t = {k: _median(real.images[k]) for k in COLOUR_STATS}
+    s = {k: spread(real.images[k]) for k in COLOUR_STATS}
+
+    def offset(v: float) -> float:
+        images = [replace(cam, saturation=v).develop(x, n) for x, n in zip(lin, normals)]
+        return sum((_median([_stat(k, im) for im in images]) - t[k]) / s[k] for k in COLOUR_STATS)
+    return offset
+
+
 def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, real_format: str | None,
                  seed: int = 0) -> tuple[list[Edit], Camera]:
     """Exposure and tone curve (searched in turn, twice: each moves the other's statistic), colour
-    saturation, blur and shot noise that bring the probe's medians to the real ones, and the real
-    images' format -> (the edits, the camera found)."""
+    saturation (HSV saturation and colourfulness together), blur and shot noise that bring the
+    probe's medians to the real ones, and the real images' format -> (the edits, the camera found)."""
     lin = [srgb8_to_linear(p) for p in probe_rgb8]
     t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "noise")}
     normals = [np.random.default_rng([seed, k]).standard_normal(x.shape) for k, x in enumerate(lin)]
@@ -168,7 +187,7 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
         for _ in range(2):
             cam.stops = _search(lin, cam, "stops", "brightness", -5.0, 5.0, t["brightness"], True, normals)
             cam.contrast = _search(lin, cam, "contrast", "contrast", 1.0, 3.0, t["contrast"], True, normals)
-        cam.saturation = _search(lin, cam, "saturation", "saturation", 0.5, 2.5, t["saturation"], True, normals)
+        cam.saturation = _bisect(_colour_offset(lin, cam, real, normals), 0.5, 2.5, 0.0, True)
         probe_s = _median([_stat("sharpness", replace(cam, sigma=0.0).develop(x, n)) for x, n in zip(lin, normals)])
         cam.sigma = 0.0
         if probe_s > t["sharpness"] * (1.0 + SHARPNESS_TOLERANCE):
@@ -188,7 +207,8 @@ def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t:
              f"fit: real brightness median {t['brightness']:.3f} (5-95 % {real_b['p5']:.2f}-{real_b['p95']:.2f}); "
              f"the probe needs {cam.stops:+.2f} stops"),
         Edit("sensor.contrast", round(cam.contrast, 2), f"fit: real luma range (5-95 %) median {t['contrast']:.3f}"),
-        Edit("sensor.saturation", round(cam.saturation, 2), f"fit: real saturation median {t['saturation']:.3f}"),
+        Edit("sensor.saturation", round(cam.saturation, 2), f"fit: real saturation median {t['saturation']:.3f}, "
+             f"colourfulness {_median(real.images['colourfulness']):.3f}"),
         Edit("sensor.blur", [round(0.75 * sigma, 2), round(1.25 * sigma, 2)] if sigma > 0 else None,
              f"fit: real edge sharpness median {t['sharpness']:.3f}, the probe's {probe_s:.3f}: "
              f"{'a blur of ' + format(sigma, '.2f') + ' px' if sigma else 'no blur'}"),
