@@ -329,7 +329,7 @@ def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
     for _ in range(int(rng.integers(1, 3))):  # magazines open on its middle, under the objects
         dr.flat("magazine", *MAGAZINE, cu + float(rng.uniform(-0.1, 0.1)) * w, cv + float(rng.uniform(-0.1, 0.1)) * d,
                 float(rng.uniform(-30, 30)), PAPER)
-    _paper(dr, whole, n - n // 2, avoid=(cu - w / 2, cv - d / 2, cu + w / 2, cv + d / 2))
+    _paper(dr, whole, n, avoid=(cu - w / 2, cv - d / 2, cu + w / 2, cv + d / 2))
 
 
 def _back_row(dr: _Dresser, stage, density: float) -> None:
