@@ -374,7 +374,7 @@ class _Pipeline:
         args = {}
         if c.stage == "render":
             for r in result:
-                for k, v in r.get("phases", {}).items():
+                for k, v in r.phases.items():
                     args[k] = args.get(k, 0.0) + v
             phases = self.summary.render_phases
             for k, v in args.items():
@@ -414,14 +414,12 @@ class _Pipeline:
 def _job_detail(stage: str, result) -> str:
     """What one finished call did, for ``--verbose``."""
     if stage == "arrange":
-        if result.get("cached"):
+        if result.cached:
             return "settled earlier (cached)"
-        return (f"{result['objects']} object(s) settled, {result['removed']} removed, "
-                f"{result['redropped']} re-dropped")
+        return f"{result.objects} object(s) settled, {result.removed} removed, {result.redropped} re-dropped"
     if stage == "view":
-        ok = sum(1 for r in result if r["accepted"])
-        return (f"{ok} of {len(result)} camera(s) accepted after "
-                f"{sum(r['tries'] for r in result)} tries")
+        ok = sum(1 for r in result if r.accepted)
+        return f"{ok} of {len(result)} camera(s) accepted after {sum(r.tries for r in result)} tries"
     return f"{len(result)} image(s)"
 
 
