@@ -27,7 +27,7 @@ def main(argv: list[str]) -> int:
     stage, marker = argv[0], Path(argv[1])
     assert argv[2] == "--", argv
     from specsynth.cli import main as cli_main
-    from specsynth.run import build as build_mod
+    from specsynth.run import pipeline
 
     if stage == "merge":
         from specsynth.outputs import bop
@@ -44,7 +44,7 @@ def main(argv: list[str]) -> int:
 
         bop.place_file = place_file
     else:
-        real_done = build_mod._Pipeline.on_done
+        real_done = pipeline.Pipeline.on_done
 
         def on_done(self, c, res):
             calls = real_done(self, c, res)
@@ -52,7 +52,7 @@ def main(argv: list[str]) -> int:
                 _stop_here(marker)
             return calls
 
-        build_mod._Pipeline.on_done = on_done
+        pipeline.Pipeline.on_done = on_done
     return cli_main(argv[3:])
 
 

@@ -108,7 +108,7 @@ def test_each_report_carries_the_record_as_stored(tmp_path):
         arranged = steps.arrange.run(a)
         assert isinstance(arranged, Arranged) and arranged.record == store.load("arrange", a.key)
         assert {m.name for m in arranged.models} == {"duck", "mug"} and arranged.distractors == ()
-        assert steps.arrange.run(a) == Arranged(a.id, cached=True)
+        assert steps.arrange.run(a) == Arranged(a.id, a.key, cached=True)
         viewed = steps.views.run(a.key, views)
         assert all(isinstance(v, Viewed) and v.record == store.load("view", j.key) for v, j in zip(viewed, views))
         accepted = [(v, r) for v, r, rep in zip(views, renders, viewed) if rep.accepted]

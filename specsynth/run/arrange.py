@@ -29,10 +29,10 @@ class ArrangeStep:
     def run(self, job: Job) -> Arranged:
         """Settle one arrangement (cached when its record exists)."""
         if self.store.has("arrange", job.key):
-            return Arranged(job.id, cached=True)
+            return Arranged(job.id, job.key, cached=True)
         rec = self.settle(job)
         self.store.put("arrange", job.key, rec.to_json())
-        return Arranged(job.id, objects=len(rec.objects), removed=rec.removed, redropped=rec.redropped,
+        return Arranged(job.id, job.key, objects=len(rec.objects), removed=rec.removed, redropped=rec.redropped,
                         record=stored(rec.to_json()), models=tuple(self.world.assets()),
                         distractors=self.annotated_distractors(rec))
 

@@ -107,10 +107,11 @@ class RenderStep:
             rec, image = self.render_eye(wd, job, view, view.t_w2c, call, load_phase)
             for product in self.setup.products:  # once per view: a product adding another image links it here
                 rec = product.finish(rec, image)
+            record = rec.to_json()
             t5 = time.perf_counter()
-            self.store.commit("render", job.key, wd, rec.to_json())
-            out.append(Rendered(job.id, rec.render_seconds,
-                                {**rec.stats["phases"], "write": round(time.perf_counter() - t5, 5)}, stored(rec.to_json())))
+            self.store.commit("render", job.key, wd, record)
+            phases = {**rec.stats["phases"], "write": round(time.perf_counter() - t5, 5)}
+            out.append(Rendered(job.id, job.key, rec.render_seconds, phases, stored(record)))
             load_phase = 0.0  # the scene load is paid by the first render of the call
         return out
 

@@ -15,6 +15,7 @@ class Arranged:
     """An arrangement settled (or found in the store: ``cached``)."""
 
     id: str
+    key: str
     cached: bool = False
     objects: int = 0
     removed: int = 0
@@ -31,6 +32,7 @@ class Viewed:
     """One view job: its camera accepted or dropped after ``tries``."""
 
     id: str
+    key: str
     accepted: bool
     tries: int
     rejected_seconds: float
@@ -42,6 +44,7 @@ class Rendered:
     """One render job: its render seconds and where the job's time went."""
 
     id: str
+    key: str
     seconds: float
     phases: dict[str, float]
     record: dict[str, Any] = field(default_factory=dict)

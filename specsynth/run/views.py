@@ -39,7 +39,7 @@ class ViewStep:
                 continue
             rec = self.find(job, framed)
             self.store.put("view", job.key, rec.to_json())
-            out.append(Viewed(job.id, rec.accepted, rec.tries, rec.rejected_seconds, stored(rec.to_json())))
+            out.append(Viewed(job.id, job.key, rec.accepted, rec.tries, rec.rejected_seconds, stored(rec.to_json())))
         return out
 
     def find(self, job: Job, framed: Framed) -> ViewRecord:
