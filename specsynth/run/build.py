@@ -23,6 +23,7 @@ from .manifest import diff, manifest_of, read_manifest, write_manifest
 from .merge import COMPLETE, KEPT_FAILURES, merge
 from .pipeline import Pipeline
 from .schedule import EST_SECONDS, render_estimate, run_calls, split_group
+from .staging import Staging
 from .store import Store, write_json
 from .summary import BuildSummary
 
@@ -113,6 +114,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     refuse_links_out(out)
     summary = BuildSummary(out=str(out), backend=graph.backend)
     with output_lock(out):
+        Staging(out).recover()  # before anything else: the dataset in place is then a complete one
         store = Store(out)
         store.clean_tmp()
         ctx = BuildContext(inputs=graph.inputs, spec_dir=graph.spec_path.parent, out=out.resolve(), threads=threads or 0)
@@ -129,7 +131,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
         pipe.record_timing(out)
         if until == "view":
             return summary
-        merge(graph, out, store, pipe, summary)
+        merge(graph, out, pipe, summary)
         summary.wall_seconds = time.perf_counter() - t_build
         write_json(out / ".specsynth" / "summary.json", summary.to_json())
     return summary

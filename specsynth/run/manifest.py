@@ -13,16 +13,10 @@ from ..plan.compiler import STAGES, JobGraph
 from .store import Store, write_json
 
 
-def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:
-    """Job id -> key of every job with a finished result: a failed or never-run job is absent, so
-    a diff against a complete build shows it as removed."""
-    store = Store(out)
-    done = {s: store.keys(s) for s in STAGES}
-    jobs: dict[str, dict[str, str]] = {s: {} for s in STAGES}
-    for a, views, renders in arr_jobs:
-        for j in (a, *views, *renders):
-            if j.key in done[j.stage]:
-                jobs[j.stage][j.id] = j.key
+def write_manifest(graph: JobGraph, out: Path, arr_jobs, into: Path | None = None) -> None:
+    """The manifest (``.specsynth/manifest.json``) and the lock file of a build into ``out``, or
+    into ``into`` when the dataset is written aside (the merge's staging folder)."""
+    into = Path(out) if into is None else Path(into)
     manifest = {
         "specsynth": metadata.version("specsynth"),
         "spec": str(graph.spec_path),
@@ -30,9 +24,9 @@ def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:
         "backend": graph.backend,
         "stage_inputs": graph.stage_inputs,
         "stage_digests": graph.stage_digests,
-        "jobs": jobs,
+        "jobs": finished_jobs(Store(out), arr_jobs),
     }
-    write_json(out / ".specsynth" / "manifest.json", manifest, indent=None)
+    write_json(into / ".specsynth" / "manifest.json", manifest, indent=None)
     lock = {
         "seed": graph.spec.seed,
         "seed_rule": "numpy SeedSequence(entropy=seed, spawn_key=sha256(job id) as uint32 words)",
@@ -40,7 +34,19 @@ def write_manifest(graph: JobGraph, out: Path, arr_jobs) -> None:
         "arrangement_seeds": {a.id: a.seed for a, _, _ in arr_jobs},
         "stage_digests": graph.stage_digests,
     }
-    write_json(out / "specsynth.lock", lock)
+    write_json(into / "specsynth.lock", lock)
+
+
+def finished_jobs(store: Store, arr_jobs) -> dict[str, dict[str, str]]:
+    """Job id -> key of every job with a finished result, by stage: a failed or never-run job is
+    absent, so a diff against a complete build shows it as removed."""
+    done = {s: store.keys(s) for s in STAGES}
+    jobs: dict[str, dict[str, str]] = {s: {} for s in STAGES}
+    for a, views, renders in arr_jobs:
+        for j in (a, *views, *renders):
+            if j.key in done[j.stage]:
+                jobs[j.stage][j.id] = j.key
+    return jobs
 
 
 def manifest_of(graph: JobGraph) -> dict[str, Any]:

@@ -1,5 +1,6 @@
-"""The merge: every finished render into the dataset formats the spec switches on, then the
-attribution, the manifest and the record of the files written."""
+"""The merge: every finished render into the dataset formats the spec switches on, with the
+attribution, the manifest and the record of the files written, in a staging folder swapped in at
+the end (``staging``)."""
 
 from __future__ import annotations
 
@@ -14,17 +15,15 @@ from ..output_api import ImageEntry
 from ..plan.compiler import JobGraph
 from .manifest import write_manifest
 from .pipeline import Pipeline
-from .store import Store, write_json
+from .staging import COMPLETE, KEPT_FAILURES, Staging
+from .store import write_json
 from .summary import BuildSummary, StageStats, error_control_summary
 
-# Written when a merge completes without failures, removed when one starts: a dataset that a
-# failing rebuild must not replace.
-COMPLETE = Path(".specsynth") / "complete.json"
-KEPT_FAILURES = Path(".specsynth") / "failures.json"
 
-
-def merge(graph: JobGraph, out: Path, store: Store, pipe: Pipeline, summary: BuildSummary) -> None:
-    """Every finished render into the dataset formats, then the manifest and the output index."""
+def merge(graph: JobGraph, out: Path, pipe: Pipeline, summary: BuildSummary) -> None:
+    """Every finished render into the dataset formats, with the attribution, the manifest and the
+    record of the files, written aside and swapped in (``staging``): a merge that fails or is
+    killed leaves the last dataset as it was, and the next build completes it."""
     t0 = time.perf_counter()
     phases = Phases()
     images, credits = collect(pipe, summary)
@@ -33,12 +32,25 @@ def merge(graph: JobGraph, out: Path, store: Store, pipe: Pipeline, summary: Bui
         summary.kept_previous = True  # a failed or empty rebuild must not replace the last good dataset
         write_json(out / KEPT_FAILURES, summary.failures)
         return
-    (out / COMPLETE).unlink(missing_ok=True)  # until the last file is in place
-    (out / KEPT_FAILURES).unlink(missing_ok=True)
+    staging = Staging(out)
+    new = staging.begin()
+    phases.done("stage")
+    write_dataset(graph, out, new, pipe, summary, images, credits, phases)
+    staging.commit()
+    phases.done("swap")
+    summary.merge_phases = phases.seconds
+    summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
+
+
+def write_dataset(graph: JobGraph, out: Path, new: Path, pipe: Pipeline, summary: BuildSummary,
+                  images: list[ImageEntry], credits: list[dict], phases: Phases) -> None:
+    """The dataset of ``images`` into ``new`` (the staging folder that becomes ``out``): every
+    writer's files, the attribution, the lock file and manifest, the failures, the record of the
+    files, and the completion mark when nothing failed."""
     from ..outputs import write_outputs
     from ..outputs.attribution import write_attribution
     from ..outputs.dataset import parts
-    from .verify import read_index, write_index
+    from .verify import INDEX, index_of, read_index
 
     every = [e for part in parts(graph.spec.split, images) for e in part.images]  # a stereo pair's eyes: two images
     summary.images = len(every)
@@ -46,17 +58,16 @@ def merge(graph: JobGraph, out: Path, store: Store, pipe: Pipeline, summary: Bui
     _account_savings(summary, every, pipe.cached_render)
     models = dataset_models(graph, every, pipe)
     phases.done("models")
-    write_outputs(out, graph.spec, images, models, previous=read_index(out))
-    write_attribution(out, credits, graph.spec.name)
-    write_manifest(graph, out, pipe.arr_jobs)
-    write_json(out / "failures.json", summary.failures)
+    previous = read_index(out)
+    write_outputs(new, graph.spec, images, models, previous=previous, final=out)
+    write_attribution(new, credits, graph.spec.name)
+    write_manifest(graph, out, pipe.arr_jobs, into=new)
+    write_json(new / "failures.json", summary.failures)
     phases.done("write")
-    write_index(out)  # last: every output file is in place
+    write_json(new / INDEX, index_of(new, previous), indent=None)
     if images and not summary.failures:
-        write_json(out / COMPLETE, {"images": summary.images})
+        write_json(new / COMPLETE, {"images": summary.images})
     phases.done("index")
-    summary.merge_phases = phases.seconds
-    summary.stages["merge"] = StageStats(total=1, ran=1, seconds=time.perf_counter() - t0)
 
 
 class Phases:
