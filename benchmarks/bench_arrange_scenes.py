@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from specsynth.plan.compiler import compile_spec
-from specsynth.run.arrange import run_arrange
-from specsynth.run.worker import BuildContext, Worker
+from specsynth.run.tasks import Steps
+from specsynth.run.worker import BuildContext
 from specsynth.spec.yamlio import load_spec
 
 OBJECTS = ["duck", "mug", "teddy", "lego", "jenga", "torus", "toys/cube", "toys/cylinder", "toys/prism",
@@ -51,21 +51,22 @@ def main() -> None:
             f = Path(d) / "s.yaml"
             f.write_text(spec_text(scene, args.n, lmo=args.objects == "lmo"))
             graph = compile_spec(load_spec(f))
-            w = Worker(BuildContext(inputs=graph.inputs, spec_dir=Path(d), out=Path(d) / "out"))
-            w.assets()  # asset conversion is not physics
+            steps = Steps(BuildContext(inputs=graph.inputs, spec_dir=Path(d), out=Path(d) / "out"))
+            steps.world.assets()  # asset conversion is not physics
             for a in range(min(2, args.n)):  # scene load and collision shapes are per-process costs
-                w.scene(graph.spec.scenes[0])
+                steps.world.scene(graph.spec.scenes[0])
             cpu, dropped, removed, redropped, slow = [], 0, 0, 0, []
             for arr in range(args.n):
                 job = graph.arrange_job(arr)
                 t0 = time.process_time()
-                run_arrange(w, graph.inputs.arrange, job)
+                steps.arrange.run(job)
                 cpu.append(time.process_time() - t0)
-                rec = w.store.load("arrange", job.key)
+                rec = steps.store.load("arrange", job.key)
                 dropped += rec["dropped"]
                 removed += rec["removed"]
                 redropped += rec["redropped"]
                 slow.append((cpu[-1], arr, rec["stage"], rec["sim_seconds"], rec["redropped"], rec["settled"]))
+            steps.close()
             cpu_sorted = sorted(cpu)
             p90 = cpu_sorted[int(0.9 * (len(cpu) - 1))]
             print(f"| {scene} | {args.n} | {dropped} | {statistics.mean(cpu):.2f}, {statistics.median(cpu):.2f}, {p90:.2f} "

@@ -24,8 +24,8 @@ from specsynth.assets import meshio
 from specsynth.plan import seeds
 from specsynth.plan.compiler import compile_spec
 from specsynth.plan.inputs import BuildInputs
-from specsynth.run import arrange as arrange_step
-from specsynth.run.worker import BuildContext, Worker
+from specsynth.run.tasks import Steps
+from specsynth.run.worker import BuildContext
 from specsynth.spec.yamlio import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,14 +61,14 @@ def main() -> None:
         physics.box_meets_region = lambda box, region: True
         physics.faces_in_region = lambda v, f, region: f
     with tempfile.TemporaryDirectory() as out:
-        w = Worker(BuildContext(inputs=BuildInputs.of(spec), spec_dir=graph.spec_path.parent, out=Path(out)))
+        steps = Steps(BuildContext(inputs=BuildInputs.of(spec), spec_dir=graph.spec_path.parent, out=Path(out)))
         results = []
         for arr in range(graph.n_arrangements):
             job, _, _ = graph.arrangement_jobs(arr)
-            room = w.scene(spec.scenes[0], seeds.job_seed(spec.seed, f"{job.id}/scene"))  # assembled, untimed
+            room = steps.world.scene(spec.scenes[0], seeds.job_seed(spec.seed, f"{job.id}/scene"))  # assembled, untimed
             faces[1] += sum(len(meshio.read_mesh(m.mesh_path).faces) for m in room.collider_meshes())
-            results.append(arrange_step.run_arrange(w, w.ctx.inputs.arrange, job))
-        w.close()
+            results.append(steps.arrange.run(job))
+        steps.close()
     print(f"{len(seconds)} arrangements of specs/demo.yaml, {'all' if args.all_colliders else 'near-stage'} colliders")
     print(f"physics.arrange s: median {statistics.median(seconds):.3f}, p90 {np.percentile(seconds, 90):.3f}, "
           f"max {max(seconds):.3f}, total {sum(seconds):.2f}")
@@ -76,8 +76,8 @@ def main() -> None:
     print(f"settled {sum(r.settled for r in outcomes)} of {len(outcomes)}; simulated s: median "
           f"{statistics.median(sim):.2f}, max {max(sim):.2f}, total {sum(sim):.1f}")
     print(f"collider triangles given to Bullet: {faces[0]:,} of {faces[1]:,} ({100 * faces[0] / max(faces[1], 1):.0f} %)")
-    print(f"objects kept {sum(r['objects'] for r in results)}, removed {sum(r['removed'] for r in results)}, "
-          f"re-dropped {sum(r['redropped'] for r in results)}")
+    print(f"objects kept {sum(r.objects for r in results)}, removed {sum(r.removed for r in results)}, "
+          f"re-dropped {sum(r.redropped for r in results)}")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from specsynth.backend_api import load_backend
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.bench import _views, psnr8, rel_mse, scaled_intrinsics
 from specsynth.plan.inputs import BuildInputs
-from specsynth.run.worker import BuildContext, Worker
+from specsynth.run.worker import Optics, World
 from specsynth.spec.models import PAPER_PRESETS, QualityPreset
 from specsynth.spec.yamlio import load_spec
 
@@ -44,8 +44,8 @@ def main() -> None:
     (picked, _) = _views(graph, out, 1)
     arec, vrec, seed = picked[0]
     spec = graph.spec.model_copy(update={"intrinsics": scaled_intrinsics(graph.spec.intrinsics, args.scale)})
-    worker = Worker(BuildContext(inputs=BuildInputs.of(spec), spec_dir=graph.spec_path.parent, out=out))
-    scene, cam = worker.render_scene(arec), worker.camera(vrec.R_w2c, vrec.t_w2c)
+    world = World(BuildInputs.of(spec).arrange, graph.spec_path.parent)
+    scene, cam = world.render_scene(arec), Optics(spec.intrinsics).camera(vrec.R_w2c, vrec.t_w2c)
     rows = []
 
     def measure(backend_name, label, options, tweak=None):

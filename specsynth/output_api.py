@@ -107,12 +107,19 @@ class Part:
 class Merge:
     """What every writer is given: the build's finished images and what they show."""
 
-    out: Path
+    out: Path  # where to write: the build's staging folder, swapped into ``final_out`` once every writer is done
     spec: DatasetSpec
     parts: tuple[Part, ...]
     models: tuple[ObjectAsset, ...]  # every obj_id the annotations name
     enabled: frozenset[str]  # the writers switched on
     kinds: frozenset[str]  # every file kind an installed product may write, and "rgb"
+    final: Path | None = None  # the dataset's folder once in place (None: ``out``)
+
+    @property
+    def final_out(self) -> Path:
+        """The folder the dataset is read from: a path a file records (into the store, say) is
+        relative to it, never to ``out``."""
+        return self.final if self.final is not None else self.out
 
     @property
     def splits(self) -> set[str]:

@@ -4,9 +4,10 @@ kill it there: no timing race decides where the kill lands.
     python tests/paused_build.py STAGE MARKER -- build SPEC --out OUT ...
 
 ``STAGE`` is ``arrange``, ``view`` or ``render``: the build stops when its first job of that stage
-has finished (its record is in the store; the workers go on with the jobs they hold), or ``merge``:
-it stops while writing the dataset, after its fifth file is in place. It then writes its pid to
-``MARKER`` and sleeps until it is killed. The build's own code runs unchanged up to that point.
+has finished (its record is in the store; the workers go on with the jobs they hold); ``merge``:
+it stops while writing the dataset, after its fifth file is in place; ``swap``: it stops while
+swapping the new dataset in, once ``bop/`` is in place (and the entries after it are not). It then writes its pid to ``MARKER``
+and sleeps until it is killed. The build's own code runs unchanged up to that point.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ def main(argv: list[str]) -> int:
     stage, marker = argv[0], Path(argv[1])
     assert argv[2] == "--", argv
     from specsynth.cli import main as cli_main
-    from specsynth.run import build as build_mod
+    from specsynth.run import pipeline
 
     if stage == "merge":
         from specsynth.outputs import bop
@@ -43,8 +44,19 @@ def main(argv: list[str]) -> int:
             return n
 
         bop.place_file = place_file
+    elif stage == "swap":
+        from specsynth.run.staging import Staging
+
+        real_swap = Staging._swap
+
+        def swap(self, name, ident):
+            real_swap(self, name, ident)
+            if name == "bop":
+                _stop_here(marker)
+
+        Staging._swap = swap
     else:
-        real_done = build_mod._Pipeline.on_done
+        real_done = pipeline.Pipeline.on_done
 
         def on_done(self, c, res):
             calls = real_done(self, c, res)
@@ -52,7 +64,7 @@ def main(argv: list[str]) -> int:
                 _stop_here(marker)
             return calls
 
-        build_mod._Pipeline.on_done = on_done
+        pipeline.Pipeline.on_done = on_done
     return cli_main(argv[3:])
 
 

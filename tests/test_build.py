@@ -362,7 +362,7 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
     from specsynth.annotate.engine import Annotator
     from specsynth.model.records import ArrangementRecord, ViewRecord
     from specsynth.run.store import Store
-    from specsynth.run.worker import BuildContext, Worker
+    from specsynth.run.worker import Optics, World
 
     W, H = 96, 72
     spec = tmp_path / "s.yaml"
@@ -375,14 +375,14 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
     out = tmp_path / "out"
     build(g, out, jobs=1, until="view")
     store = Store(out)
-    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=spec.parent, out=out))
+    scenes, optics = World(g.inputs.arrange, spec.parent), Optics(g.inputs.view.intrinsics)
     ann = Annotator(W, H)
     checked = compared = 0
     try:
         arrs = {a.arr: a for a in (ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange"))}
         views = [ViewRecord.from_json(store.load("view", k)) for k in store.keys("view")]
         for arr_id, arr in sorted(arrs.items()):
-            rs = worker.render_scene(arr)
+            rs = scenes.render_scene(arr)
             ann.load(rs)
             world = _triangles(rs.meshes)
             objects = {o.inst: _triangles([o]) for o in rs.objects()}
@@ -397,7 +397,7 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
                 # Labels against pixels: a ray through each pixel centre of the focused object's
                 # silhouette; visible where the object is hit no more than delta behind the
                 # nearest surface (BOP's rule), away from the mask's edges.
-                cam = worker.camera(R, t)
+                cam = optics.camera(R, t)
                 a = ann.annotate(cam, delta)
                 k = [o.inst for o in rs.objects()].index(v.focus_inst)
                 amodal, visib = a.masks[k], a.masks_visib[k]
@@ -423,7 +423,6 @@ def test_every_accepted_camera_stands_in_free_space(scene, tmp_path):
                 compared += 1
     finally:
         ann.close()
-        worker.close()
     assert checked >= 4 and compared >= 3, (checked, compared)
 
 

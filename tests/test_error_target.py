@@ -249,7 +249,7 @@ def test_an_image_without_noise_is_at_its_target_everywhere_it_is_counted(tmp_pa
 
     from specsynth.outputs.parquet import error_columns
     from specsynth.outputs.qa import error_stats
-    from specsynth.run.build import error_control_summary
+    from specsynth.run.summary import error_control_summary
 
     black = render_to_target(NoisyRenderer(np.zeros((16, 16, 3)), 1.0, 1), ErrorTarget(225, 2, 225), linear_to_srgb8)
     assert (black.samples, black.renders, black.error, black.target) == (4, 2, 0.0, 0.0)

@@ -16,7 +16,7 @@ from specsynth.model.records import ArrangementRecord
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.build import build
 from specsynth.run.store import Store
-from specsynth.run.worker import BuildContext, Worker
+from specsynth.run.worker import World
 from specsynth.scenes import load_scene
 from specsynth.scenes.randomize import randomize_scene
 from specsynth.spec.models import SceneRandomization
@@ -78,26 +78,19 @@ def test_distractors_are_scene_geometry_and_never_annotated(tmp_path):
     recs = [ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange")]
     assert sum(len(r.distractors) for r in recs) >= 4  # 8 dropped; a few may leave the stage
     assert all(d.name == "teddy" or d.name.startswith("random_urdfs/") for r in recs for d in r.distractors)
-    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=f.parent, out=tmp_path / "out"))
-    try:
-        scene = worker.render_scene(recs[0])
-        extra = [m for m in scene.meshes if m.name.startswith("distractor_")]
-        assert len(extra) == len(recs[0].distractors) and all(m.obj_id is None for m in extra)
-        assert worker.render_scene(recs[0]) == scene  # randomisation is a function of the arrangement
-    finally:
-        worker.close()
+    world = World(g.inputs.arrange, f.parent)
+    scene = world.render_scene(recs[0])
+    extra = [m for m in scene.meshes if m.name.startswith("distractor_")]
+    assert len(extra) == len(recs[0].distractors) and all(m.obj_id is None for m in extra)
+    assert world.render_scene(recs[0]) == scene  # randomisation is a function of the arrangement
     gt = json.loads((tmp_path / "out" / "bop" / "train_pbr" / "000000" / "scene_gt.json").read_text())
     assert {i["obj_id"] for v in gt.values() for i in v} <= {1, 2}  # only the dataset objects
     n_objects = {r.arr: len(r.objects) for r in recs}
     assert all(len(v) == n_objects[int(k) // 2] for k, v in gt.items())
     # Every swapped-in texture of every arrangement is credited, by name.
     lib = {str(t.path): t.name for t in textures.available(cache_dir())}
-    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=f.parent, out=tmp_path / "out"))
-    try:
-        swapped = {lib[m.material.texture] for r in recs for m in worker.render_scene(r).meshes
-                   if m.material.texture in lib}
-    finally:
-        worker.close()
+    world = World(g.inputs.arrange, f.parent)
+    swapped = {lib[m.material.texture] for r in recs for m in world.render_scene(r).meshes if m.material.texture in lib}
     att = json.loads((tmp_path / "out" / "attribution.json").read_text())
     credited = {a["asset"].removeprefix("texture:") for a in att if a["asset"].startswith("texture:")}
     assert swapped and swapped <= credited, sorted(swapped - credited)
@@ -195,9 +188,5 @@ def test_a_distractor_drawn_twice_is_dropped_twice_by_a_cold_worker(tmp_path):
     f = tmp_path / "dr.yaml"
     f.write_text(SPEC)
     g = compile_spec(load_spec(f))
-    worker = Worker(BuildContext(inputs=g.inputs, spec_dir=f.parent, out=tmp_path / "out"))
-    try:
-        assets = worker.distractor_assets(["teddy", "random_urdfs/007", "teddy"])
-        assert [a.name for a in assets] == ["teddy", "random_urdfs/007", "teddy"] and assets[0] is assets[2]
-    finally:
-        worker.close()
+    assets = World(g.inputs.arrange, f.parent).distractor_assets(["teddy", "random_urdfs/007", "teddy"])
+    assert [a.name for a in assets] == ["teddy", "random_urdfs/007", "teddy"] and assets[0] is assets[2]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from test_build import cli_build, tree_digest
 
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.build import BuildLocked, build, output_lock
+from specsynth.run.staging import STAGING
 from specsynth.spec.yamlio import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,12 +65,14 @@ def test_dask_local_cluster_gives_the_same_bytes(spec_file, reference, tmp_path)
     assert a == b, sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))[:10]
 
 
-def paused_build(spec_file: Path, out: Path, stage: str, marker: Path, *, new_session: bool) -> subprocess.Popen:
-    """`specsynth build --jobs 2` in a child that stops for good at ``stage`` (tests/paused_build.py)
-    once ``marker`` holds its pid; a child that ends or hangs before that fails the test."""
+def paused_build(spec_file: Path, out: Path, stage: str, marker: Path, *, new_session: bool,
+                 extra: tuple[str, ...] = ()) -> subprocess.Popen:
+    """`specsynth build --jobs 2` (and ``extra`` arguments) in a child that stops for good at
+    ``stage`` (tests/paused_build.py) once ``marker`` holds its pid; a child that ends or hangs
+    before that fails the test."""
     proc = subprocess.Popen(
         [sys.executable, str(Path(__file__).with_name("paused_build.py")), stage, str(marker), "--",
-         "build", str(spec_file), "--out", str(out), "--jobs", "2", "--quiet"],
+         "build", str(spec_file), "--out", str(out), "--jobs", "2", "--quiet", *extra],
         start_new_session=new_session, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )
     deadline = time.time() + 240
@@ -90,8 +94,8 @@ def test_sigkill_then_resume_is_byte_identical(spec_file, reference, tmp_path, k
     out = tmp_path / "killed"
     proc = paused_build(spec_file, out, kill_after, tmp_path / "stopped", new_session=True)
     d = out / ".specsynth" / "store" / kill_after
-    if kill_after == "merge":
-        assert len([p for p in (out / "bop").rglob("*") if p.is_file()]) >= 5
+    if kill_after == "merge":  # the dataset is written aside, then swapped in
+        assert len([p for p in (out / STAGING / "new" / "bop").rglob("*") if p.is_file()]) >= 5
         assert not (out / ".specsynth" / "outputs.json").exists()  # the merge had not finished
     else:
         assert any(d.rglob("record.json"))
@@ -106,6 +110,63 @@ def test_sigkill_then_resume_is_byte_identical(spec_file, reference, tmp_path, k
     assert not s.failures, s.failures
     assert not [p for p in out.rglob("*.tmp") if ".specsynth" not in p.parts]
     assert tree_digest(out) == tree_digest(reference)
+
+
+def _dataset(out: Path) -> dict[str, bytes]:
+    """Every file of the dataset in ``out`` (all but specsynth's own .specsynth), by path."""
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file() and p.relative_to(out).parts[0] != ".specsynth"}
+
+
+RESEED = ("--set", "seed=12")  # a rebuild in which every file changes
+
+
+@pytest.fixture(scope="module")
+def reseeded(spec_file, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("reseeded") / "out"
+    cli_build(spec_file, out, "--jobs", "1", *RESEED)
+    return out
+
+
+def test_a_merge_killed_midway_leaves_the_last_dataset_and_the_next_build_completes_it(spec_file, reference,
+                                                                                       reseeded, tmp_path):
+    """A complete dataset is rebuilt with another seed and the rebuild is killed (SIGKILL of its
+    process group) while its merge writes the new dataset, after its fifth file: the last dataset
+    is still in place byte for byte, and the next build completes the new one as a clean build."""
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    last = _dataset(out)
+    proc = paused_build(spec_file, out, "merge", tmp_path / "stopped", new_session=True, extra=RESEED)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert _dataset(out) == last and (out / ".specsynth" / "complete.json").is_file()
+    s = build(compile_spec(load_spec(spec_file, ["seed=12"])), out, jobs=2)
+    assert not s.failures and not s.kept_previous
+    assert tree_digest(out) == tree_digest(reseeded) and not (out / STAGING).exists()
+
+
+def test_a_swap_killed_midway_is_finished_by_the_next_build_before_anything_else(spec_file, reference,
+                                                                                 reseeded, tmp_path):
+    """Killed once the new dataset's bop/ is in place, before its coco/ and parquet/ are: each
+    top-level entry is the last dataset's or the new one's, whole, and the folder is not marked
+    complete; the next build, even of another spec, finishes the swap before it runs a job (this
+    one stops after its cameras, before any merge)."""
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    last, new = _dataset(out), _dataset(reseeded)
+    proc = paused_build(spec_file, out, "swap", tmp_path / "stopped", new_session=True, extra=RESEED)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    now = _dataset(out)
+    tops = {k.split("/")[0] for k in now.keys() | last.keys() | new.keys()}
+    for top in tops:
+        part = {k: v for k, v in now.items() if k.split("/")[0] == top}
+        assert part in ({k: v for k, v in last.items() if k.split("/")[0] == top},
+                        {k: v for k, v in new.items() if k.split("/")[0] == top}), top
+    assert now != last and not (out / ".specsynth" / "complete.json").exists()
+    build(compile_spec(load_spec(spec_file, ["seed=1"])), out, jobs=1, until="view")
+    assert tree_digest(out) == tree_digest(reseeded) and not (out / STAGING).exists()
+    assert (out / ".specsynth" / "complete.json").is_file()
 
 
 def _crashy(spec_file: Path, cam: int, *extra: str):

@@ -6,7 +6,7 @@ import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 
-from specsynth.run.build import Call, _run
+from specsynth.run.schedule import Call, run_calls
 
 
 class Inline:
@@ -34,7 +34,7 @@ def _pipeline(ex, n_arr: int, log: list, work=lambda stage, arr: None, window: i
         return [Call(job, (nxt, c.arr), nxt, f"{nxt}{c.arr}", 1, c.arr)] if nxt else []
 
     calls = [Call(job, ("arrange", i), "arrange", f"a{i}", 1, i) for i in range(n_arr)]
-    _run(ex, calls, on_done, lambda c, e: [], window=window, retries=0)
+    run_calls(ex, calls, on_done, lambda c, e: [], window=window, retries=0)
 
 
 def test_arrangements_settle_first_then_each_flows_to_its_renders():
@@ -87,7 +87,7 @@ def test_retry_then_split_then_report():
         (ids,) = c.args
         return None if len(ids) < 2 else [Call(group, ([i],), c.stage, i, 1, c.arr) for i in ids]
 
-    _run(Inline(), [c], lambda c, r: done.append(r[1]) or [], lambda c, e: failed.append((c.ident, str(e))) or [],
+    run_calls(Inline(), [c], lambda c, r: done.append(r[1]) or [], lambda c, e: failed.append((c.ident, str(e))) or [],
          window=2, retries=1, split=split)
     assert failed == [("bad", "bad job")]
     assert sorted(map(tuple, done)) == [("a",), ("b",)]
@@ -99,7 +99,7 @@ def test_build_splits_view_and_render_groups_but_not_arrangements():
     as a group (that raised inside the scheduler and stopped the whole build)."""
     from types import SimpleNamespace as Job
 
-    from specsynth.run.build import split_group
+    from specsynth.run.schedule import split_group
 
     arrange = Call(print, ("w", Job(id="arr=000000")), "arrange", "arr=000000", 1, 0)
     assert split_group(arrange) is None

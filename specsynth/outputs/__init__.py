@@ -21,16 +21,17 @@ __all__ = ["write_outputs"]
 
 def write_outputs(
     out: Path, spec: DatasetSpec, images: Sequence[ImageEntry], models: Sequence[ObjectAsset],
-    previous: Iterable[str] = (),
+    previous: Iterable[str] = (), final: Path | None = None,
 ) -> dict[str, int]:
     """Write every format the spec switches on into ``out``; counts by name. ``images``: the
     views' records; another image of a view (a stereo right eye) is a split of its own beside
     them (``<split>_right``, Parquet ``*_right``). ``previous``: the files the last build wrote
-    (relative paths), of which those no writer writes now are removed."""
+    (relative paths), of which those no writer writes now are removed. ``final``: the folder
+    ``out`` becomes once in place (a build writes aside and swaps), when it is another."""
     found = writers()
     enabled = frozenset(spec.outputs.selected("writer"))
     kinds = frozenset({"rgb"}) | {k for p in products().values() for k in p.file_kinds()}
-    merge = Merge(Path(out), spec, parts(spec.split, images), tuple(models), enabled, kinds)
+    merge = Merge(Path(out), spec, parts(spec.split, images), tuple(models), enabled, kinds, final)
     _remove_stale(merge, found, previous)
     counts: dict[str, int] = {}
     for part in merge.parts:

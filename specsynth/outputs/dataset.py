@@ -45,7 +45,7 @@ def file_paths(merge: Merge, split: str, rec: ImageRecord, store: Path) -> dict[
     writer is on, else the store's own files."""
     if LAYOUT in merge.enabled:
         return image_relpaths(split, rec, merge.spec.outputs.chunk_size)
-    return {kind: os.path.relpath(Path(store) / name, merge.out).replace(os.sep, "/")
+    return {kind: os.path.relpath(Path(store) / name, merge.final_out).replace(os.sep, "/")
             for kind, name in sorted(rec.files.items()) if isinstance(name, str)}
 
 

@@ -209,9 +209,10 @@ def export_yolo(
 
 
 def _export(out: Path, dest: Path, *, min_visib: float, val_split: str | None, val_fraction: float,
-            names: dict[int, str] | None = None) -> YoloSummary:
+            names: dict[int, str] | None = None, dataset: Path | None = None) -> YoloSummary:
     """The export once its options and destination are known to be good; ``names``: obj_id ->
-    class name (default: read from the dataset's models and COCO files)."""
+    class name (default: read from the dataset's models and COCO files); ``dataset``: the
+    dataset's folder as data.yaml names it, when ``out`` is where it is being written."""
     missing: list[Path] = []
     images = list_images(out, missing)
     _check_rgb(missing)
@@ -251,7 +252,7 @@ def _export(out: Path, dest: Path, *, min_visib: float, val_split: str | None, v
         summary.boxes += n
         summary.skipped_low_visibility += skipped
     _remove_stale(dest, keep)
-    write_if_changed(dest / "data.yaml", data_yaml(summary, out, min_visib))
+    write_if_changed(dest / "data.yaml", data_yaml(summary, out if dataset is None else dataset, min_visib))
     return summary
 
 
@@ -297,7 +298,8 @@ class YoloWriter(DatasetWriter):
 
     def write(self, merge: Merge) -> dict[str, int]:
         s = _export(Path(merge.out), Path(merge.out) / "yolo", min_visib=DEFAULT_MIN_VISIB, val_split=None,
-                    val_fraction=0.0, names={m.obj_id: m.name for m in sorted(merge.models, key=lambda m: m.obj_id)})
+                    val_fraction=0.0, names={m.obj_id: m.name for m in sorted(merge.models, key=lambda m: m.obj_id)},
+                    dataset=Path(merge.final_out))
         return {"yolo_images": sum(s.images.values()), "yolo_boxes": s.boxes}
 
     def owns(self, rel: str, merge: Merge) -> bool | None:

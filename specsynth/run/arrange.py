@@ -3,8 +3,6 @@ physics, store the arrangement record (with the credits of everything it shows).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from ..assets.resolve import ObjectAsset, catalogue_objects
@@ -14,60 +12,93 @@ from ..plan.compiler import Job
 from ..plan.inputs import ArrangeInputs
 from ..scenes import procedural_name
 from ..spec.models import SceneRef
-from .worker import Worker
+from .reports import Arranged
+from .store import Store, stored
+from .worker import World
 
 
-def run_arrange(w: Worker, inp: ArrangeInputs, job: Job) -> dict[str, Any]:
-    """Settle one arrangement (cached when its record exists) -> a summary for the build."""
-    from ..physics import arrange
+class ArrangeStep:
+    """Settles arrangements with its own inputs, into ``store``, over a ``world`` built from the
+    same inputs (its resolved objects and loaded scenes are the views' and renders' too)."""
 
-    if w.store.has("arrange", job.key):
-        return {"id": job.id, "cached": True}
-    index, rng = seeds.scene_draw(inp.seed, job.id, [s.weight for s in inp.scenes])
-    ref = inp.scenes[index]
-    variant = seeds.job_seed(inp.seed, f"{job.id}/scene") if procedural_name(ref) else None
-    scene = w.scene(ref, variant)
-    names = list(scene.stages) if ref.stages else sorted(scene.stages)  # the scene holds the ones asked for
-    stage = scene.stages[names[draw_stage([scene.stages[n].weight for n in names], rng)]]
+    def __init__(self, inputs: ArrangeInputs, world: World, store: Store):
+        if world.inputs != inputs:
+            raise ValueError("the arrange step's world must be built from its own inputs")
+        self.inputs, self.world, self.store = inputs, world, store
 
-    models = w.assets()
-    if inp.objects.models_per_arrangement is not None:
-        lo, hi = inp.objects.models_per_arrangement
-        k = min(int(rng.integers(lo, hi + 1)), len(models))
-        chosen = sorted(rng.choice(len(models), size=k, replace=False))
-        models = [models[i] for i in chosen]
-    lo, hi = inp.objects.instances
-    drop: list[ObjectAsset] = []
-    for m in models:
-        drop += [m] * int(rng.integers(lo, hi + 1))
+    def run(self, job: Job) -> Arranged:
+        """Settle one arrangement (cached when its record exists)."""
+        if self.store.has("arrange", job.key):
+            return Arranged(job.id, job.key, cached=True)
+        rec = self.settle(job)
+        self.store.put("arrange", job.key, rec.to_json())
+        return Arranged(job.id, job.key, objects=len(rec.objects), removed=rec.removed, redropped=rec.redropped,
+                        record=stored(rec.to_json()), models=tuple(self.world.assets()),
+                        distractors=self.annotated_distractors(rec))
 
-    distractors = w.distractor_assets(draw_distractors(inp.arrangements.distractors, rng))
-    result = arrange(scene, stage, drop + distractors, inp.arrangements, inp.objects.orientation, rng)
-    targets = [(i, pose) for i, pose in result.placed if i < len(drop)]
-    placed = [
-        PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
-        for n, (i, pose) in enumerate(targets)
-    ]
-    others = [
-        PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
-        for n, (i, pose) in enumerate((i, pose) for i, pose in result.placed if i >= len(drop))
-    ]
-    if inp.arrangements.distractors.annotate:  # objects like the others, after them in gt order
-        n_obj = len(w.assets())
-        placed += [PlacedObject(obj_id=inp.arrangements.distractors.obj_id(o.name, n_obj), inst=len(placed) + k,
-                                name=o.name, pose=o.pose) for k, o in enumerate(others)]
-        others = []
-    rec = ArrangementRecord(
-        arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
-        objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
-        settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
-        credits=list(scene.credits) + [a.credit for a in models if a.credit]
-        + [a.credit for a in {d.name: d for d in distractors}.values() if a.credit],
-        distractors=others,
-    )
-    rec.credits += swapped_credits(w, rec, ref)
-    w.store.put("arrange", job.key, rec.to_json())
-    return {"id": job.id, "removed": rec.removed, "redropped": rec.redropped, "objects": len(placed)}
+    def settle(self, job: Job) -> ArrangementRecord:
+        """The arrangement of ``job``: its scene and stage, the objects and distractors drawn from
+        its seed, dropped and settled."""
+        from ..physics import arrange
+
+        inp, world = self.inputs, self.world
+        index, rng = seeds.scene_draw(inp.seed, job.id, [s.weight for s in inp.scenes])
+        ref = inp.scenes[index]
+        variant = seeds.job_seed(inp.seed, f"{job.id}/scene") if procedural_name(ref) else None
+        scene = world.scene(ref, variant)
+        names = list(scene.stages) if ref.stages else sorted(scene.stages)  # the scene holds the ones asked for
+        stage = scene.stages[names[draw_stage([scene.stages[n].weight for n in names], rng)]]
+        models = self.draw_models(rng)
+        lo, hi = inp.objects.instances
+        drop: list[ObjectAsset] = []
+        for m in models:
+            drop += [m] * int(rng.integers(lo, hi + 1))
+        distractors = world.distractor_assets(draw_distractors(inp.arrangements.distractors, rng))
+        result = arrange(scene, stage, drop + distractors, inp.arrangements, inp.objects.orientation, rng)
+        placed, others = self.placed(result.placed, drop, distractors)
+        rec = ArrangementRecord(
+            arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
+            objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
+            settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
+            credits=list(scene.credits) + [a.credit for a in models if a.credit]
+            + [a.credit for a in {d.name: d for d in distractors}.values() if a.credit],
+            distractors=others,
+        )
+        rec.credits += swapped_credits(world, rec, ref)
+        return rec
+
+    def draw_models(self, rng: np.random.Generator) -> list[ObjectAsset]:
+        """The models an arrangement drops: all of them, or ``models_per_arrangement`` drawn."""
+        models = self.world.assets()
+        if self.inputs.objects.models_per_arrangement is not None:
+            lo, hi = self.inputs.objects.models_per_arrangement
+            k = min(int(rng.integers(lo, hi + 1)), len(models))
+            chosen = sorted(rng.choice(len(models), size=k, replace=False))
+            models = [models[i] for i in chosen]
+        return models
+
+    def placed(self, kept, drop: list[ObjectAsset], distractors: list[ObjectAsset]
+               ) -> tuple[list[PlacedObject], list[PlacedObject]]:
+        """(the annotated objects in gt order, the distractors left as scene geometry) of what
+        physics kept (``kept``: (index into drop + distractors, pose))."""
+        targets = [(i, pose) for i, pose in kept if i < len(drop)]
+        placed = [PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
+                  for n, (i, pose) in enumerate(targets)]
+        others = [PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
+                  for n, (i, pose) in enumerate((i, pose) for i, pose in kept if i >= len(drop))]
+        d = self.inputs.arrangements.distractors
+        if not d.annotate:
+            return placed, others
+        n_obj = len(self.world.assets())  # annotated: objects like the others, after them in gt order
+        placed += [PlacedObject(obj_id=d.obj_id(o.name, n_obj), inst=len(placed) + k, name=o.name, pose=o.pose)
+                   for k, o in enumerate(others)]
+        return placed, []
+
+    def annotated_distractors(self, rec: ArrangementRecord) -> tuple[ObjectAsset, ...]:
+        """The models of the distractors ``rec`` annotates, each under its obj_id."""
+        spec_ids = {a.obj_id for a in self.world.assets()}
+        by_id = self.world.assets_by_id(rec)
+        return tuple(by_id[i] for i in sorted(by_id) if i not in spec_ids)
 
 
 def draw_stage(weights: list[float], rng) -> int:
@@ -78,7 +109,7 @@ def draw_stage(weights: list[float], rng) -> int:
     return int(rng.choice(len(p), p=p / p.sum()))
 
 
-def swapped_credits(w: Worker, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:
+def swapped_credits(world: World, rec: ArrangementRecord, ref: SceneRef) -> list[dict]:
     """Credits of the library textures that randomisation puts into this arrangement's scene
     (exactly what its renders will show: the same function of the same seed)."""
     if not ref.randomize.materials:
@@ -87,7 +118,7 @@ def swapped_credits(w: Worker, rec: ArrangementRecord, ref: SceneRef) -> list[di
     from ..assets.library.cache import cache_dir
 
     by_path = {str(t.path): t for t in textures.available(cache_dir())}
-    used = sorted({m.material.texture for m in w.render_scene(rec).meshes if m.material.texture in by_path})
+    used = sorted({m.material.texture for m in world.render_scene(rec).meshes if m.material.texture in by_path})
     return [by_path[t].credit for t in used]
 
 

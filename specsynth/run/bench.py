@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..model.colour import linear_to_srgb8
 from ..model.error import rel_mse, split_rel_mse
@@ -27,6 +28,22 @@ from ..spec.models import PAPER_PRESETS, QualityPreset
 from .build import build
 from .render import draw_to_target
 from .store import Store, write_json
+from .worker import Optics, World
+
+
+@dataclass(frozen=True)
+class Shots:
+    """The picked views as a build's renders see them: each arrangement's scene rebuilt from its
+    record, each view's camera at the bench's resolution."""
+
+    world: World
+    optics: Optics
+
+    def scene(self, arec: ArrangementRecord):
+        return self.world.render_scene(arec)
+
+    def camera(self, vrec: ViewRecord):
+        return self.optics.camera(vrec.R_w2c, vrec.t_w2c)
 
 
 @dataclass
@@ -207,14 +224,14 @@ def camera_savings(backend: str, rows: list[Row], level: str, cams: tuple[dict, 
     return out
 
 
-def toggle_saving(plugin: BackendPlugin, label: str, option: str, base_opts: dict, spec, picked, worker, preset,
+def toggle_saving(plugin: BackendPlugin, label: str, option: str, base_opts: dict, spec, picked, shots: Shots, preset,
                   repeats: int) -> Saving:
     """The same views rendered with a boolean backend option on and off."""
     cls = plugin.load_class()
     times: dict[bool, list[float]] = {True: [], False: []}
     for arec, vrec, seed in picked:
-        scene = worker.render_scene(arec)
-        cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
+        scene = shots.scene(arec)
+        cam = shots.camera(vrec)
         for on in (True, False, False, True) * max(1, repeats):  # alternate: the first render after a load is slower
             backend = cls(plugin.options.model_validate({**base_opts, option: on}), threads=0)
             backend.load(scene)
@@ -239,8 +256,7 @@ def scaled_intrinsics(intr, scale: float):
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
               ladder: bool = False, only: tuple[str, ...] = ()) -> list[Row]:
-    from ..plan.inputs import BuildInputs
-    from .worker import BuildContext, Worker
+    from ..plan.inputs import ArrangeInputs
 
     out = Path(out)
     spec = graph.spec
@@ -267,22 +283,22 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             continue
         # The spec's own options for this backend, minus what the bench varies (denoise, samples).
         base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
-        worker = Worker(BuildContext(inputs=BuildInputs.of(spec.model_copy(update={"intrinsics": small})),
-                                     spec_dir=graph.spec_path.parent, out=out))
-        refs: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
-        settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
-        settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
-        for st in settings:
-            rows.append(bench_setting(plugin, cls, st, base_opts, spec, picked, worker, refs, repeats, out))
-            if console:
-                r = rows[-1]
-                console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
-        level = spec.quality.paper_level
-        savings += camera_savings(name, rows, level, cams, statistics.median(r.load for r in rows if r.backend == name), spec.cameras.per_arrangement)
-        preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
-        for label, option in bench_settings(plugin).toggles:
-            savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, worker, preset, repeats))
-        worker.close()
+        # One BLAS thread, as in a build's workers (tasks.Steps): only the renderer is timed.
+        with threadpool_limits(limits=1, user_api="blas"):
+            shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small))
+            refs: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
+            settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
+            settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
+            for st in settings:
+                rows.append(bench_setting(plugin, cls, st, base_opts, spec, picked, shots, refs, repeats, out))
+                if console:
+                    r = rows[-1]
+                    console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
+            level = spec.quality.paper_level
+            savings += camera_savings(name, rows, level, cams, statistics.median(r.load for r in rows if r.backend == name), spec.cameras.per_arrangement)
+            preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
+            for label, option in bench_settings(plugin).toggles:
+                savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, shots, preset, repeats))
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
     return rows, savings
 
@@ -309,7 +325,7 @@ def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
 REF_SEEDS = (7919, 7920)  # the reference's two halves: seeds no setting renders with
 
 
-def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec, picked, worker, refs: dict,
+def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec, picked, shots: Shots, refs: dict,
                   repeats: int, out: Path) -> Row:
     """Every picked view rendered with one setting, timed; its error against the reference (which
     the reference setting, benched first, puts into ``refs``: its mean and its own variance)."""
@@ -322,9 +338,9 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
     samples = 0
     for i, (arec, vrec, seed) in enumerate(picked):
         t0 = time.perf_counter()
-        backend.load(worker.render_scene(arec))
+        backend.load(shots.scene(arec))
         loads.append(time.perf_counter() - t0)
-        cam = worker.camera(vrec.R_w2c, vrec.t_w2c)
+        cam = shots.camera(vrec)
         if st.reference:
             lin, var, seconds = reference(backend, options, cam, preset, seed, spec.quality.clamp, arec, out)
             refs[i] = (lin, linear_to_srgb8(lin), var)

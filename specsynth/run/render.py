@@ -7,99 +7,187 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from ..model import lens
 from ..model.colour import check_finite, linear_to_srgb8
 from ..model.error import ErrorTarget, render_to_target
-from ..model.ir import RenderResult, RenderScene
+from ..model.ir import CameraIR, RenderResult, RenderScene
 from ..model.records import ArrangementRecord, ImageRecord, ViewRecord
 from ..output_api import ViewProduct, active_products
 from ..plan import seeds
 from ..plan.compiler import Job
 from ..plan.inputs import RenderInputs
-from ..plugins import backend_plugin
+from ..plugins import BackendPlugin, backend_plugin
+from ..spec.models import QualityPreset
 from ..views.sensor import jpeg_quality, sensor_rgb
-from .worker import Worker
+from .reports import Rendered
+from .store import Store, stored
+from .worker import Framed, Held, Optics, World
+
+if TYPE_CHECKING:
+    from ..annotate.engine import Annotation
+    from ..assets.resolve import ObjectAsset
 
 
-def run_renders(w: Worker, inp: RenderInputs, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[dict[str, Any]]:
-    """Render each accepted view of one arrangement: files and record committed to the store together."""
-    arr = ArrangementRecord.from_json(w.store.load("arrange", arrange_key))
-    scene, origin = w.frame(arr)
-    backend = w.backend()
-    annot = w.annotator()
-    load_seconds = w.load("backend", arrange_key, scene) + w.load("annotator", arrange_key, scene)
-    load_phase = load_seconds
-    occluders = "scene" if w.draws_scene else "objects"
-    preset = inp.quality.resolved()
-    ctx = _Render(inp, arr, scene, origin, arrange_key, backend, annot, occluders, preset, load_seconds,
-                  w.assets_by_id(arr), error_target(inp), tuple(active_products(inp)))
-    out = []
-    for view_job, job in pairs:
-        if w.store.has("render", job.key):  # finished before a retry
-            continue
-        view = ViewRecord.from_json(w.store.load("view", view_job.key))
-        wd = w.store.begin()
-        rec, image = render_eye(w, wd, job, view, view.t_w2c, ctx, load_phase)
-        for product in ctx.products:  # once per view: a product adding another image links it here
-            rec = product.finish(rec, image)
-        t5 = time.perf_counter()
-        w.store.commit("render", job.key, wd, rec.to_json())
-        out.append({"id": job.id, "seconds": rec.render_seconds,
-                    "phases": {**rec.stats["phases"], "write": round(time.perf_counter() - t5, 5)}})
-        load_phase = 0.0  # the scene load is paid by the first render of the call
-    return out
+@dataclass(frozen=True)
+class RenderSetup:
+    """What every render of a build shares, fixed when the step is built: the inputs, what the
+    backend plugin says it draws, the preset, the error target and the active products."""
+
+    inputs: RenderInputs
+    draws_scene: bool  # False: the backend draws the objects only (what occludes them, what the albedo shows)
+    preset: QualityPreset
+    target: ErrorTarget | None  # quality.control: error
+    products: tuple[ViewProduct, ...]  # what every image writes besides its colour (by name)
+
+    @classmethod
+    def of(cls, inputs: RenderInputs, plugin: BackendPlugin) -> "RenderSetup":
+        return cls(inputs, plugin.capabilities.draws_scene, inputs.quality.resolved(), error_target(inputs, plugin),
+                   tuple(active_products(inputs)))
+
+    @property
+    def occluders(self) -> str:
+        return "scene" if self.draws_scene else "objects"
+
+    def drawn(self, scene: RenderScene) -> RenderScene:
+        """What the backend draws of ``scene`` (the albedo raster draws the same)."""
+        return scene if self.draws_scene else scene.objects_only()
 
 
-def render_eye(w: Worker, wd: Path, job: Job, view: ViewRecord, t_w2c, ctx: _Render,
-               load_phase: float) -> tuple[ImageRecord, _Image]:
-    """One camera's image of the arrangement, its files written into ``wd``: render, annotate,
-    lens and sensor, products; -> its record and the image the products saw (every image of a
-    view shares the job's seed)."""
-    inp, warp = ctx.inp, w.lens_warp()
-    cam = w.camera(view.R_w2c, t_w2c, ctx.origin)
-    cam_r = lens.render_camera(cam, warp) if warp else cam
-    if inp.depth_of_field is not None:
-        cam_r = focused(inp, cam_r, ctx.scene, view.focus_inst, job)
-    if inp.motion_blur is not None:
-        cam_r = replace(cam_r, motion=camera_motion(inp.motion_blur, seeds.job_seed(inp.arrange.seed, f"{job.id}/motion")))
-    t1 = time.perf_counter()
-    res = draw(ctx, cam_r, job.seed)
-    seconds = time.perf_counter() - t1
-    if res.linear is not None:
-        check_finite(res.linear, f"{inp.backend.name} render of {job.id}")
-    t2 = time.perf_counter()
-    if warp:
-        ann = ctx.annot.annotate_lens(cam, warp, inp.intrinsics.distortion, inp.visibility_delta, ctx.occluders)
-        res = through_lens(res, warp)
-    else:
-        ann = ctx.annot.annotate(cam, inp.visibility_delta, ctx.occluders)
-    t3 = time.perf_counter()
+@dataclass(frozen=True)
+class RenderCall:
+    """One arrangement loaded for a render call: what each of its images shares."""
 
-    def albedo() -> np.ndarray:  # through a lens, drawn like the colour: pinhole, then warped
-        albedo8 = w.albedo(ctx.arrange_key, ctx.scene).render(cam_r)
-        return lens.remap_nearest(albedo8, warp) if warp else albedo8
+    key: str  # the arrangement's store key
+    framed: Framed
+    load_seconds: float  # the backend's and the annotator's loads of the arrangement
+    backend_version: str
 
-    def other_eye(t: Any, folder: str) -> ImageRecord:
-        (wd / folder).mkdir()
-        return render_eye(w, wd / folder, job, view, t, ctx, 0.0)[0]
 
-    image = _Image(wd, inp, cam, cam_r, res, ann, ctx.by_id, warp.rays if warp else None, job.id, albedo, other_eye)
-    files = write_image(image, ctx.products)
-    stats = dict(res.stats)
-    stats["load_seconds"] = ctx.load_seconds
-    stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,
-                                    annotate=t3 - t2, encode=time.perf_counter() - t3)
-    return ImageRecord(
-        arr=job.arr, cam=job.cam, index=view.index, scene=ctx.arr.scene, stage=ctx.arr.stage,
-        backend=inp.backend.name, backend_version=ctx.backend.version(), quality=inp.quality.level,
-        seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
-        R_w2c=view.R_w2c, t_w2c=list(t_w2c), depth_scale=image.recorded_depth_scale(), instances=ann.instances,
-        files=files, distortion=list(inp.intrinsics.distortion) if warp else None, render_seconds=seconds, stats=stats,
-    ), image
+class RenderStep:
+    """Renders with its own inputs and the backend plugin's capabilities (read once, here). The
+    backend, the annotator and the albedo raster are ``Held``: each loads an arrangement once for
+    consecutive calls of it; the annotator is the view step's (one per image size)."""
+
+    def __init__(self, inputs: RenderInputs, world: World, annotator: Held, store: Store, *,
+                 spec_dir: Path, threads: int = 0):
+        if world.inputs != inputs.arrange:
+            raise ValueError("the render step's world must be built from its own arrangement inputs")
+        plugin = backend_plugin(inputs.backend.name)
+        self.setup = RenderSetup.of(inputs, plugin)
+        self.world, self.annotator, self.store = world, annotator, store
+        self.optics = Optics(inputs.intrinsics)
+        # Paths in a spec are relative to the spec file (as the compiler hashes them), never to
+        # wherever the build was started.
+        options = plugin.options_for(inputs.backend.relative_to(spec_dir), inputs.quality)
+        self.backend = Held(lambda: plugin.load_class()(options, threads=threads))
+        self.albedo = Held(self._albedo_renderer)
+
+    def _albedo_renderer(self):
+        from ..annotate.albedo import AlbedoRenderer
+
+        return AlbedoRenderer(*self.optics.canvas)  # through a lens, drawn like the colour: pinhole, then warped
+
+    def close(self) -> None:
+        self.backend.close()
+        self.albedo.close()
+
+    def run(self, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[Rendered]:
+        """Render each accepted view of one arrangement: files and record committed to the store together."""
+        call = self.load(arrange_key)
+        out, load_phase = [], call.load_seconds
+        for view_job, job in pairs:
+            if self.store.has("render", job.key):  # finished before a retry
+                continue
+            view = ViewRecord.from_json(self.store.load("view", view_job.key))
+            wd = self.store.begin()
+            rec, image = self.render_eye(wd, job, view, view.t_w2c, call, load_phase)
+            for product in self.setup.products:  # once per view: a product adding another image links it here
+                rec = product.finish(rec, image)
+            record = rec.to_json()
+            t5 = time.perf_counter()
+            self.store.commit("render", job.key, wd, record)
+            phases = {**rec.stats["phases"], "write": round(time.perf_counter() - t5, 5)}
+            out.append(Rendered(job.id, job.key, rec.render_seconds, phases, stored(record)))
+            load_phase = 0.0  # the scene load is paid by the first render of the call
+        return out
+
+    def load(self, arrange_key: str) -> RenderCall:
+        """The arrangement, loaded into the backend and the annotator unless they hold it."""
+        framed = self.world.frame(ArrangementRecord.from_json(self.store.load("arrange", arrange_key)))
+        seconds = self.backend.load(arrange_key, framed.scene) + self.annotator.load(arrange_key, framed.scene)
+        return RenderCall(arrange_key, framed, seconds, self.backend.get().version())
+
+    def render_eye(self, wd: Path, job: Job, view: ViewRecord, t_w2c, call: RenderCall,
+                   load_phase: float) -> tuple[ImageRecord, _Image]:
+        """One camera's image of the arrangement, its files written into ``wd``: render, annotate,
+        lens and sensor, products; -> its record and the image the products saw (every image of a
+        view shares the job's seed)."""
+        inp, warp = self.setup.inputs, self.optics.warp
+        cam = self.optics.camera(view.R_w2c, t_w2c, call.framed.origin)
+        cam_r = self.render_camera(cam, call.framed.scene, view.focus_inst, job)
+        t1 = time.perf_counter()
+        res = self.draw(cam_r, job.seed)
+        seconds = time.perf_counter() - t1
+        if res.linear is not None:
+            check_finite(res.linear, f"{inp.backend.name} render of {job.id}")
+        t2 = time.perf_counter()
+        annotator = self.annotator.get()
+        if warp:
+            ann = annotator.annotate_lens(cam, warp, inp.intrinsics.distortion, inp.visibility_delta, self.setup.occluders)
+            res = through_lens(res, warp)
+        else:
+            ann = annotator.annotate(cam, inp.visibility_delta, self.setup.occluders)
+        t3 = time.perf_counter()
+
+        def albedo() -> np.ndarray:  # through a lens, drawn like the colour: pinhole, then warped
+            self.albedo.load(call.key, self.setup.drawn(call.framed.scene))
+            albedo8 = self.albedo.get().render(cam_r)
+            return lens.remap_nearest(albedo8, warp) if warp else albedo8
+
+        def other_eye(t: Any, folder: str) -> ImageRecord:
+            (wd / folder).mkdir()
+            return self.render_eye(wd / folder, job, view, t, call, 0.0)[0]
+
+        image = _Image(wd, inp, cam, cam_r, res, ann, call.framed.assets, warp.rays if warp else None, job.id,
+                       albedo, other_eye)
+        files = write_image(image, self.setup.products)
+        stats = dict(res.stats)
+        stats["load_seconds"] = call.load_seconds
+        stats["phases"] = render_phases(res.stats.get("phases"), seconds, load=load_phase,
+                                        annotate=t3 - t2, encode=time.perf_counter() - t3)
+        arr = call.framed.record
+        return ImageRecord(
+            arr=job.arr, cam=job.cam, index=view.index, scene=arr.scene, stage=arr.stage,
+            backend=inp.backend.name, backend_version=call.backend_version, quality=inp.quality.level,
+            seed=job.seed, width=cam.width, height=cam.height, K=cam.K_array.tolist(),
+            R_w2c=view.R_w2c, t_w2c=list(t_w2c), depth_scale=image.recorded_depth_scale(), instances=ann.instances,
+            files=files, distortion=list(inp.intrinsics.distortion) if warp else None, render_seconds=seconds,
+            stats=stats,
+        ), image
+
+    def render_camera(self, cam: CameraIR, scene: RenderScene, focus_inst: int, job: Job) -> CameraIR:
+        """The camera the backend gets: through a lens its pinhole window, with the thin lens and
+        the motion over the exposure the spec asks for."""
+        inp, warp = self.setup.inputs, self.optics.warp
+        cam_r = lens.render_camera(cam, warp) if warp else cam
+        if inp.depth_of_field is not None:
+            cam_r = focused(inp, cam_r, scene, focus_inst, job)
+        if inp.motion_blur is not None:
+            cam_r = replace(cam_r, motion=camera_motion(inp.motion_blur, seeds.job_seed(inp.arrange.seed, f"{job.id}/motion")))
+        return cam_r
+
+    def draw(self, cam: CameraIR, seed: int) -> RenderResult:
+        """One image from the backend: one render of the level's samples, or, under an error target,
+        pairs of renders with independent seeds until the image's estimated error reaches the target."""
+        setup, backend = self.setup, self.backend.get()
+        clamp = setup.inputs.quality.clamp
+        if setup.target is None:
+            return backend.render(cam, setup.preset, seed, clamp=clamp)
+        return draw_to_target(backend, cam, setup.preset, seed, setup.target, clamp)
 
 
 def write_image(image: _Image, products: tuple[ViewProduct, ...]) -> dict[str, Any]:
@@ -140,11 +228,11 @@ class _Image:
 
     folder: Path
     inputs: RenderInputs
-    camera: Any
-    render_camera: Any
+    camera: CameraIR
+    render_camera: CameraIR
     result: RenderResult
-    annotation: Any
-    assets: dict
+    annotation: Annotation
+    assets: dict[int, ObjectAsset]
     rays: np.ndarray | None
     job_id: str
     draw_albedo: Callable[[], np.ndarray]
@@ -190,21 +278,11 @@ def focused(inp: RenderInputs, cam, scene: RenderScene, focus_inst: int, job: Jo
     return replace(cam, aperture=aperture_m, focus_distance=max(z + jitter, 2.0 * cam.near))
 
 
-def error_target(inp: RenderInputs) -> ErrorTarget | None:
+def error_target(inp: RenderInputs, plugin: BackendPlugin) -> ErrorTarget | None:
     """The per-image error target of ``quality.control: error``, else None (the level's samples)."""
     if inp.quality.control != "error":
         return None
-    plugin = backend_plugin(inp.backend.name)
     return plugin.error_target(inp.backend, inp.quality)  # the spec's own samples start it
-
-
-def draw(ctx: _Render, cam, seed: int) -> RenderResult:
-    """One image from the backend: one render of the level's samples, or, under an error target,
-    pairs of renders with independent seeds until the image's estimated error reaches the target."""
-    clamp = ctx.inp.quality.clamp
-    if ctx.target is None:
-        return ctx.backend.render(cam, ctx.preset, seed, clamp=clamp)
-    return draw_to_target(ctx.backend, cam, ctx.preset, seed, ctx.target, clamp)
 
 
 def draw_to_target(backend, cam, preset, seed: int, target: ErrorTarget, clamp: float | None) -> RenderResult:
@@ -217,25 +295,6 @@ def draw_to_target(backend, cam, preset, seed: int, target: ErrorTarget, clamp: 
 
     done = render_to_target(one, target, linear_to_srgb8)
     return replace(done.result, stats={**done.result.stats, **done.stats()})
-
-
-@dataclass(frozen=True)
-class _Render:
-    """What every image of one render call shares."""
-
-    inp: RenderInputs
-    arr: ArrangementRecord
-    scene: RenderScene
-    origin: Any
-    arrange_key: str
-    backend: Any
-    annot: Any
-    occluders: str
-    preset: Any
-    load_seconds: float
-    by_id: dict  # obj_id -> ObjectAsset of every annotated object
-    target: ErrorTarget | None  # quality.control: error
-    products: tuple[ViewProduct, ...]  # what every image writes besides its colour (by name)
 
 
 def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:

@@ -117,6 +117,12 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def stored(record: dict[str, Any]) -> dict[str, Any]:
+    """``record`` exactly as ``Store.load`` will return it (canonical JSON read back: tuples become
+    lists, numpy numbers plain ones), for a caller that keeps what it committed."""
+    return json.loads(canonical_json(record))
+
+
 def write_json(path: Path, obj: Any, *, indent: int | None = 2) -> None:
     text = json.dumps(obj, indent=indent, sort_keys=True, allow_nan=False) + "\n"
     atomic_write_bytes(path, text.encode("utf-8"))

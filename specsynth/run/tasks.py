@@ -1,27 +1,82 @@
 """What a worker process runs: the task functions executors call, and the process's set-up.
 
 Work arrives grouped per arrangement so the expensive state (assets, pyrender scene, the
-renderer's scene) is built once per arrangement and only the camera moves. That state is a
-``Worker`` (``worker.py``) per build, made when the process starts (``init_worker``); the steps are
-``arrange.run_arrange``, ``views.run_views``, ``render.run_renders``. Renderers are found by name
-through entry points, never imported here.
+renderer's scene) is built once per arrangement and only the camera moves. A process keeps one
+``Steps`` per build, made when it starts (``init_worker``): the three steps (``arrange.ArrangeStep``,
+``views.ViewStep``, ``render.RenderStep``), each built on its first job from its own stage's inputs,
+over the state they share (``worker.py``). Renderers are found by name through entry points, never
+imported here.
 """
 
 from __future__ import annotations
 
 import os
 import time
+from functools import cached_property
+
+from threadpoolctl import threadpool_limits
 
 from .. import notices
 from ..plan.compiler import Job
-from .arrange import run_arrange
-from .render import run_renders
-from .views import run_views
-from .worker import BuildContext, Worker
+from ..spec.models import Intrinsics
+from .arrange import ArrangeStep
+from .render import RenderStep
+from .reports import Arranged, Rendered, Viewed
+from .store import Store
+from .views import ViewStep
+from .worker import BuildContext, Held, World
 
-# Worker state per output folder, created by the pool initializer (or a Dask WorkerPlugin): the
-# warm renderer must outlive a job, and one Dask worker process may serve several builds at once.
-_workers: dict[str, Worker] = {}
+
+class Steps:
+    """One build's steps in this process, each built on its first job from its own stage's inputs,
+    over what they share: the store, the world the arrangement inputs rebuild, and the annotator
+    of each image size (a view group and the renders of its arrangement load it once)."""
+
+    def __init__(self, ctx: BuildContext):
+        self.ctx = ctx
+        self.store = Store(ctx.out)
+        self.world = World(ctx.inputs.arrange, ctx.spec_dir)
+        self._annotators: dict[tuple[int, int], Held] = {}
+        # One BLAS thread: our products are 4x4 poses and Nx3 vertex arrays, too small to gain from
+        # threads, and an idle OpenBLAS thread spins in sched_yield after every call. Measured on a
+        # photo build: 28 CPU-s in 19 s of wall with numpy's default 2 threads, 17.5 in 17.5 with 1;
+        # with two workers that spinning is taken from the other worker. Undone by ``close``.
+        self._blas = threadpool_limits(limits=1, user_api="blas")
+
+    def annotator(self, intrinsics: Intrinsics) -> Held:
+        size = (intrinsics.width, intrinsics.height)
+        if size not in self._annotators:
+            from ..annotate.engine import Annotator
+
+            self._annotators[size] = Held(lambda: Annotator(*size))
+        return self._annotators[size]
+
+    @cached_property
+    def arrange(self) -> ArrangeStep:
+        return ArrangeStep(self.ctx.inputs.arrange, self.world, self.store)
+
+    @cached_property
+    def views(self) -> ViewStep:
+        inputs = self.ctx.inputs.view
+        return ViewStep(inputs, self.world, self.annotator(inputs.intrinsics), self.store)
+
+    @cached_property
+    def render(self) -> RenderStep:
+        inputs = self.ctx.inputs.render
+        return RenderStep(inputs, self.world, self.annotator(inputs.intrinsics), self.store,
+                          spec_dir=self.ctx.spec_dir, threads=self.ctx.threads)
+
+    def close(self) -> None:
+        if "render" in self.__dict__:  # built: its backend and albedo raster hold GL or a renderer
+            self.render.close()
+        for held in self._annotators.values():
+            held.close()
+        self._blas.restore_original_limits()
+
+
+# Steps per output folder, created by the pool initializer (or a Dask WorkerPlugin): the warm
+# renderer must outlive a job, and one Dask worker process may serve several builds at once.
+_workers: dict[str, Steps] = {}
 
 
 def die_with_parent(parent: int) -> None:
@@ -64,11 +119,11 @@ def init_worker(ctx: BuildContext) -> None:
     if ctx.threads:
         os.environ["OMP_NUM_THREADS"] = str(ctx.threads)
         os.environ["LP_NUM_THREADS"] = str(ctx.threads)
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # BLAS libraries loaded later (see Worker._blas)
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # BLAS libraries loaded later (see Steps._blas)
     old = _workers.get(str(ctx.out))
     if old is not None:
         old.close()
-    _workers[str(ctx.out)] = Worker(ctx)
+    _workers[str(ctx.out)] = Steps(ctx)
 
 
 def available_cores() -> int:
@@ -79,7 +134,7 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def current_worker(out: str) -> Worker:
+def current_worker(out: str) -> Steps:
     try:
         return _workers[str(out)]
     except KeyError:
@@ -104,17 +159,14 @@ def timed(fn, *args):
     return time.perf_counter() - t0, res, (os.getpid(), start), told
 
 
-# Each step gets its own stage's inputs (``specsynth.plan.inputs``), never the whole spec.
-def task_arrange(out: str, job: Job):
-    w = current_worker(out)
-    return run_arrange(w, w.ctx.inputs.arrange, job)
+# Each step was built from its own stage's inputs (``specsynth.plan.inputs``), never the whole spec.
+def task_arrange(out: str, job: Job) -> Arranged:
+    return current_worker(out).arrange.run(job)
 
 
-def task_views(out: str, arrange_key: str, jobs: list[Job]):
-    w = current_worker(out)
-    return run_views(w, w.ctx.inputs.view, arrange_key, jobs)
+def task_views(out: str, arrange_key: str, jobs: list[Job]) -> list[Viewed]:
+    return current_worker(out).views.run(arrange_key, jobs)
 
 
-def task_renders(out: str, arrange_key: str, pairs: list[tuple[Job, Job]]):
-    w = current_worker(out)
-    return run_renders(w, w.ctx.inputs.render, arrange_key, pairs)
+def task_renders(out: str, arrange_key: str, pairs: list[tuple[Job, Job]]) -> list[Rendered]:
+    return current_worker(out).render.run(arrange_key, pairs)

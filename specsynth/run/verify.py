@@ -44,18 +44,24 @@ def read_index(out: Path) -> dict[str, list]:
 
 def write_index(out: Path) -> dict[str, list]:
     """Record every output file; unchanged ones (same size and mtime) keep their hash."""
-    out = Path(out)
-    old = read_index(out)
+    index = index_of(Path(out), read_index(out))
+    write_json(Path(out) / INDEX, index, indent=None)
+    return index
+
+
+def index_of(folder: Path, old: dict[str, list]) -> dict[str, list]:
+    """Every output file of ``folder`` by relative path: [size, mtime, sha256]. A file whose size
+    and mtime are those ``old`` records for its path keeps its hash (a merge's staging folder
+    holds hard links of the current dataset's files: same size and mtime)."""
     index = {}
-    for p in output_files(out):
-        rel = p.relative_to(out).as_posix()
+    for p in output_files(folder):
+        rel = p.relative_to(folder).as_posix()
         st = p.stat()
         prev = old.get(rel)
         if prev and prev[0] == st.st_size and prev[1] == st.st_mtime_ns:
             index[rel] = prev
         else:
             index[rel] = [st.st_size, st.st_mtime_ns, _sha256(p)]
-    write_json(out / INDEX, index, indent=None)
     return index
 
 

@@ -4,7 +4,6 @@ it (the visibility pre-check, through the lens when there is one) from free spac
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 
@@ -13,35 +12,53 @@ from ..plan import seeds
 from ..plan.compiler import Job
 from ..plan.inputs import ViewInputs
 from ..views import cameras
-from .worker import Worker
+from .reports import Viewed
+from .store import Store, stored
+from .worker import Framed, Held, Optics, World
 
 
-def run_views(w: Worker, inp: ViewInputs, arrange_key: str, jobs: list[Job]) -> list[dict[str, Any]]:
-    """Find a camera for each view job of one arrangement and store its record (accepted or not)."""
-    arr = ArrangementRecord.from_json(w.store.load("arrange", arrange_key))
-    scene, origin = w.frame(arr)
-    objects = scene.objects()
-    annot = w.annotator()
-    if objects:
-        w.load("annotator", arrange_key, scene)
-    by_id = w.assets_by_id(arr)
-    warp = w.lens_warp()  # through a lens, the fraction is the distorted image's
-    out = []
-    for job in jobs:
-        if w.store.has("view", job.key):  # finished before a retry
-            continue
+class ViewStep:
+    """Finds the cameras of its own inputs, over a ``world`` of the same arrangement inputs and
+    an ``annotator`` of the image's size (the renders' too: a view group and the renders of its
+    arrangement on one worker load the scene into it once)."""
+
+    def __init__(self, inputs: ViewInputs, world: World, annotator: Held, store: Store):
+        if world.inputs != inputs.arrange:
+            raise ValueError("the view step's world must be built from its own arrangement inputs")
+        self.inputs, self.world, self.annotator, self.store = inputs, world, annotator, store
+        self.optics = Optics(inputs.intrinsics)
+
+    def run(self, arrange_key: str, jobs: list[Job]) -> list[Viewed]:
+        """Find a camera for each view job of one arrangement and store its record (accepted or not)."""
+        framed = self.world.frame(ArrangementRecord.from_json(self.store.load("arrange", arrange_key)))
+        if framed.scene.objects():
+            self.annotator.load(arrange_key, framed.scene)
+        out = []
+        for job in jobs:
+            if self.store.has("view", job.key):  # finished before a retry
+                continue
+            rec = self.find(job, framed)
+            self.store.put("view", job.key, rec.to_json())
+            out.append(Viewed(job.id, job.key, rec.accepted, rec.tries, rec.rejected_seconds, stored(rec.to_json())))
+        return out
+
+    def find(self, job: Job, framed: Framed) -> ViewRecord:
+        """Cameras aimed at a random object, drawn from the job's seed until one sees enough of it
+        from free space (through the lens, the fraction is the distorted image's)."""
+        inp, objects, origin = self.inputs, framed.scene.objects(), framed.origin
+        annot, warp = self.annotator.get(), self.optics.warp
         rng = seeds.job_rng(inp.arrange.seed, job.id)
         rec = ViewRecord(arr=job.arr, cam=job.cam, index=job.arr * inp.cameras.per_arrangement + job.cam,
                          accepted=False, tries=0, seed=job.seed)
         rejected = 0.0
         for _ in range(inp.cameras.max_tries if objects else 0):
             focus = objects[int(rng.integers(len(objects)))]
-            a = by_id[focus.obj_id]
+            a = framed.assets[focus.obj_id]
             centre = np.asarray(a.bbox_min) + 0.5 * np.asarray(a.extents)
             target = (focus.matrix @ np.append(centre, 1.0))[:3] + origin  # world frame
             s = cameras.sample_camera(rng, target, inp.cameras)
             t0 = time.perf_counter()
-            cam = w.camera(s.R_w2c, s.t_w2c, origin)
+            cam = self.optics.camera(s.R_w2c, s.t_w2c, origin)
             vf = (annot.visib_fract_lens(cam, warp, inp.intrinsics.distortion, focus.inst, inp.visibility.delta)
                   if warp else annot.visib_fract(cam, focus.inst, inp.visibility.delta))
             rec.tries += 1
@@ -53,9 +70,7 @@ def run_views(w: Worker, inp: ViewInputs, arrange_key: str, jobs: list[Job]) -> 
                 break
             rejected += time.perf_counter() - t0
         rec.rejected_seconds = rejected
-        w.store.put("view", job.key, rec.to_json())
-        out.append({"id": job.id, "accepted": rec.accepted, "tries": rec.tries, "rejected_seconds": rejected})
-    return out
+        return rec
 
 
 def in_free_space(annot, s, origin: np.ndarray, clearance: float) -> bool:

@@ -17,7 +17,8 @@ from specsynth.cli import main
 from specsynth.model.ir import CameraIR, as_tuple
 from specsynth.model.records import ArrangementRecord, ViewRecord
 from specsynth.plan.compiler import compile_spec
-from specsynth.run.worker import BuildContext, Worker
+from specsynth.run.store import Store
+from specsynth.run.worker import World
 from specsynth.spec.yamlio import load_spec
 
 pytestmark = pytest.mark.slow
@@ -58,18 +59,18 @@ def _masks_compared_with_cycles_rerender(byo: Path, out: Path) -> int:
     from specsynth_cycles.backend import CyclesBackend
 
     graph = compile_spec(load_spec(byo / "spec.yaml", SMALL))
-    worker = Worker(BuildContext(inputs=graph.inputs, spec_dir=byo, out=out))
+    world, store = World(graph.inputs.arrange, byo), Store(out)
     jobs = json.loads((out / ".specsynth" / "manifest.json").read_text())["jobs"]
     info = json.loads((out / "bop/train_pbr/000000/scene_gt_info.json").read_text())
     cyc = CyclesBackend({"name": "cycles"}, threads=2)
     compared = 0
     try:
         for arr_key in jobs["arrange"].values():
-            arr = ArrangementRecord.from_json(worker.store.load("arrange", arr_key))
-            scene = worker.render_scene(arr)
+            arr = ArrangementRecord.from_json(store.load("arrange", arr_key))
+            scene = world.render_scene(arr)
             cyc.load(scene)
             for vkey in jobs["view"].values():
-                view = ViewRecord.from_json(worker.store.load("view", vkey))
+                view = ViewRecord.from_json(store.load("view", vkey))
                 if view.arr != arr.arr or not view.accepted:
                     continue
                 K = graph.spec.intrinsics
