@@ -79,7 +79,9 @@ class World:
                 rooms = [k for k in self._scenes if k[1] is not None]
                 for old in rooms[: max(0, len(rooms) - PROCEDURAL_KEPT + 1)]:
                     del self._scenes[old]
-            clearance = self.inputs.arrangements.drop_height[1] + max((a.diameter for a in self.assets()), default=0.0)
+            draws = self.inputs.arrangements
+            fall = draws.drop_height[1] if draws.placement == "drop" else 0.0  # a standing object only needs its size
+            clearance = fall + max((a.diameter for a in self.assets()), default=0.0)
             self._scenes[key] = load_scene(ref, self.spec_dir, clearance=clearance, variant=variant)
         return self._scenes[key]
 
