@@ -166,8 +166,8 @@ def _spread(rng, size):
         y = m + int(h * 0.09)
         while y < h - m - int(h * 0.06):
             bh = int(h * rng.uniform(0.1, 0.3))
-            what = rng.choice(["text", "text", "photo", "box"])
-            if what == "photo":
+            what = rng.choice(["text", "text", "picture", "box"])
+            if what == "picture":
                 picture, credit = _photograph(rng, (x1 - x0, bh))
                 im.paste(picture, (x0, y))
                 credits.append(credit)
