@@ -12,7 +12,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specsynth.assets.library import printed
+from specsynth.assets.library import furniture, printed
 from specsynth.assets.library.cache import cache_dir
 from specsynth.assets.meshfiles.primitives import catmull_rom, tube
 from specsynth.scenes import load_scene, props
@@ -41,6 +41,9 @@ def test_a_dressed_top_keeps_its_stage_area_free_and_its_flat_matter_thin(seed):
         kind = m.name.split("_")[1]
         if m.collide and kind != "board":  # nothing stands on the stage area (the stage finder checks the geometry)
             assert not (u0 < u < u1 and v0 < v < v1), m.name
+        if getattr(m.source, "furniture", None):  # nor reaches over it at any turn (a desk lamp's arm)
+            r = 0.5 * float(np.hypot(*furniture.find(m.source.furniture).size[:2]))
+            assert not (u0 - r < u < u1 + r and v0 - r < v < v1 + r), m.name
         if kind in ("page", "magazine", "board"):
             assert m.collide == (kind == "board") and m.source.box[2] <= 0.002
             assert TOP.z < m.transform.translation[2] < TOP.z + 0.02

@@ -205,8 +205,7 @@ class _Dresser:
         self.put(what, {"furniture": item.id}, u, v, self.top.z + 0.001, yaw)
         self.out.credits.append(item.credit)
 
-    def lamp(self, u: float, v: float, target: tuple[float, float]) -> None:
-        item = furniture.find(LAMPS[int(self.rng.integers(len(LAMPS)))])
+    def lamp(self, item: furniture.FurnitureItem, u: float, v: float, target: tuple[float, float]) -> None:
         self.catalogue(item, u, v, float(self.rng.uniform(-30, 30)), what="lamp")
         x, y = self.top.world(u, v)
         tx, ty = self.top.world(*target)
@@ -341,9 +340,11 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
         if spot is not None:
             dr.monitor(spot[0], spot[1], float(rng.uniform(-15, 15)))
     if rng.random() < min(1.0, 0.8 * density):
-        spot = lay.place(0.2, 0.2, back)
+        lamp = furniture.find(LAMPS[int(rng.integers(len(LAMPS)))])
+        reach = float(np.hypot(lamp.size[0], lamp.size[1]))  # its arm, at any turn: never over the stage
+        spot = lay.place(reach, reach, back)
         if spot is not None:
-            dr.lamp(spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))
+            dr.lamp(lamp, spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))
     for _ in range(_count(rng, 1, 3, density)):
         upright = rng.random() < 0.5
         spot = lay.place(0.26 if upright else 0.26, 0.3, back)
