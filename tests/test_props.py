@@ -4,6 +4,7 @@ scene-level clutter density."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -222,3 +223,42 @@ def test_the_installed_npm_set_has_its_normal_maps_and_hdris():
 
     assert len(pmndrs.normal_maps(cache_dir())) == len(pmndrs.KINDS)
     assert all(pmndrs.hdri(cache_dir(), n) for n in pmndrs.INDOOR_HDRIS + pmndrs.OUTDOOR_HDRIS)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_pinboards_hang_on_the_wall_behind_a_desk_clear_of_the_window_and_pictures(seed):
+    """A pinboard is flat on the wall behind a dressed desk, above its top, clear of the window and
+    of the framed pictures; its pinned sheets lie on its face, inside it."""
+    from specsynth.scenes import random_room
+
+    params = random_room.RoomParams(kinds=("office_desk",), density=2.0)
+    rng = np.random.default_rng(seed)
+    W, D, H, window = random_room._room_shape(rng, params)
+    items = random_room._fits(random_room.kind_items("office_desk"), W, D, H)
+    worktops = [i for i in furniture.catalogue() if re.match(random_room.WORKTOPS["office_desk"], i.id)]
+    placed = random_room.furnish(rng, items, W, D, window, 8, 1, worktops=worktops)
+    meshes, credits, spans = random_room.pinboards(rng, W, D, window, placed, cache_dir())
+    boards = [m for m in meshes if m.name.count("_") == 1]
+    assert len(spans) == len(boards) and (not boards or credits)
+    for b, (wall, s0, s1) in zip(boards, spans):
+        x, y, z = b.transform.translation
+        w, _, h = b.source.box
+        assert abs(random_room._along(wall, x, y, W, D) - (s0 + s1) / 2) < 1e-6 and s1 - s0 == pytest.approx(w)
+        gap = {"north": D / 2 - y, "south": y + D / 2, "east": W / 2 - x, "west": x + W / 2}[wall]
+        assert 0.0 < gap < 0.03  # on the wall
+        if wall == "north":
+            assert x + w / 2 < window[0] or x - w / 2 > window[1]
+        assert z - h / 2 > 0.9 and z + h / 2 < H
+        for m in meshes:
+            if m.name.startswith(b.name + "_"):
+                mx, my, mz = m.transform.translation
+                assert abs(random_room._along(wall, mx, my, W, D) - (s0 + s1) / 2) <= w / 2 + 1e-9
+                assert abs(mz - z) <= h / 2 and gap - 0.02 < {"north": D / 2 - my, "south": my + D / 2,
+                                                               "east": W / 2 - mx, "west": mx + W / 2}[wall]
+    pics, _ = random_room.pictures(rng, W, D, H, window, placed, (4, 6), random_room.picture_library.available(), spans)
+    for m in pics:
+        if m.name.endswith("_frame"):
+            wall = random_room.WALL_OF_YAW[int(round(m.transform.rotation[2]))]
+            s_ = random_room._along(wall, *m.transform.translation[:2], W, D)
+            half = m.source.box[0] / 2
+            assert not any(wl == wall and s_ - half < s1 and s0 < s_ + half for wl, s0, s1 in spans)

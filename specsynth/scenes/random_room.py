@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..assets.library import furniture, pmndrs, textures
+from ..assets.library import furniture, pmndrs, printed, textures
 from ..assets.library import pictures as picture_library
 from ..model.colour import kelvin_rgb
 from . import props
@@ -30,7 +30,8 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # items, daylight through the window, ceiling panels, surface detail (normal maps, roughness, tints). 7: more
 # magazines than pages, a stronger desk lamp, the panel over the desk the brightest. 8: a flat item lies
 # on the flat items it overlaps, not on every one placed before it. 9: relief and roughness on a grid of 0.05.
-# 10: a marker board (room.boards) lies on magazines with magazines open on it, and collides; toys and laptops on desks.
+# 10: a marker board (room.boards) lies on magazines with magazines open on it, and collides; toys and laptops on
+# desks; a pinboard with pinned sheets above a desk against a wall.
 GENERATOR_VERSION = 10
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
@@ -366,14 +367,15 @@ def _on_wall(wall: str, W: float, D: float, s: float, w: float) -> tuple[float, 
 
 
 def pictures(rng, W: float, D: float, H: float, window, placed: list[Placed], count: tuple[int, int],
-             library: list) -> tuple[list[SceneMesh], list[dict]]:
-    """Framed photographs on the walls, centred 1.1-1.9 m up: clear of the window, of each other and
-    of any furniture within 0.6 m of the wall that reaches their bottom edge (a try that does not
-    fit is skipped) -> their meshes and credits."""
+             library: list, hung: list | None = None) -> tuple[list[SceneMesh], list[dict]]:
+    """Framed photographs on the walls, centred 1.1-1.9 m up: clear of the window, of each other, of
+    what already hangs (``hung``: (wall, s0, s1) spans) and of any furniture within 0.6 m of the
+    wall that reaches their bottom edge (a try that does not fit is skipped) -> their meshes and
+    credits."""
     n = int(rng.integers(count[0], count[1] + 1))
     if not library or n == 0:
         return [], []
-    meshes, credits, hung = [], [], []
+    meshes, credits, hung = [], [], list(hung or [])
     for k in range(n):
         pic = library[int(rng.integers(len(library)))]
         h = float(rng.uniform(0.35, 0.7))
@@ -400,6 +402,57 @@ def pictures(rng, W: float, D: float, H: float, window, placed: list[Placed], co
         ]
         credits.append(pic.credit)
     return meshes, credits
+
+
+# Each wall by the yaw of a piece standing with its back to it (the front faces into the room).
+WALL_OF_YAW = {0: "north", 180: "south", -90: "east", 90: "west"}
+INWARD = {"north": (0.0, -1.0), "south": (0.0, 1.0), "east": (-1.0, 0.0), "west": (1.0, 0.0)}
+
+
+def _along(wall: str, x: float, y: float, W: float, D: float) -> float:
+    """Where (x, y) lies along ``wall``, from its left end seen from the room (``_on_wall``'s s)."""
+    return {"north": x + W / 2, "south": W / 2 - x, "east": D / 2 - y, "west": y + D / 2}[wall]
+
+
+def pinboards(rng, W: float, D: float, window, placed: list[Placed], cache: Path):
+    """Above every desk or bench against a wall (not under the window): a cork board with pages,
+    posters and covers pinned on it, as offices have behind their desks -> (meshes, credits, the
+    (wall, s0, s1) spans they take)."""
+    meshes, credits, spans = [], [], []
+    for k, p in enumerate(placed):
+        wall = WALL_OF_YAW.get(int(round(p.yaw)) if not p.middle else None)
+        if wall is None or not is_worktop(p.item) or rng.random() < 0.2:
+            continue
+        w = float(min(p.item.size[0] - 0.1, rng.uniform(0.8, 1.4)))
+        h = float(rng.uniform(0.6, 0.9))
+        s = _along(wall, p.x, p.y, W, D) + float(rng.uniform(-0.15, 0.15)) * (p.item.size[0] - w)
+        x, y, _ = _on_wall(wall, W, D, s, w)
+        if wall == "north" and x - w / 2 < window[1] + 0.1 and window[0] - 0.1 < x + w / 2 or w < 0.5:
+            continue
+        z = float(open_top(p.item)) + float(rng.uniform(0.45, 0.6)) + h / 2
+        rot = (0.0, 0.0, WALL_YAW[wall])
+        cork = printed.printed(cache, "cardboard", int(rng.integers(printed.VARIANTS["cardboard"])))
+        meshes.append(SceneMesh(name=f"pinboard_{k:02d}", source={"box": (w, 0.015, h)}, collide=False,
+                                transform=Transform(translation=(x, y, z), rotation=rot),
+                                material=SceneMaterial(texture=str(cork.path), uv_scale=(2.0 / w, 2.0 / h),
+                                                       base_color=(0.9, 0.75, 0.6), roughness=0.9, specular=0.2)))
+        credits += list(cork.credits)
+        spans.append((wall, s - w / 2, s + w / 2))
+        nx, ny = INWARD[wall]
+        for j in range(int(rng.integers(3, 8))):  # pinned sheets, overlapping as they do
+            kind = ("page", "poster", "cover", "page")[int(rng.integers(4))]
+            sw = float(rng.uniform(0.15, 0.3))
+            sh = sw / printed.SIZES[kind][0] * printed.SIZES[kind][1]
+            ds, dz = float(rng.uniform(-(w - sw) / 2, (w - sw) / 2)), float(rng.uniform(-(h - sh) / 2, (h - sh) / 2))
+            px, py, _ = _on_wall(wall, W, D, s + ds, sw)
+            off = 0.01 + 0.0005 * j  # in front of the cork, each sheet over the ones before
+            sheet = printed.printed(cache, kind, int(rng.integers(printed.VARIANTS[kind])))
+            meshes.append(SceneMesh(name=f"pinboard_{k:02d}_{kind}_{j}", source={"box": (sw, 0.0005, sh)}, collide=False,
+                                    transform=Transform(translation=(px + nx * off, py + ny * off, z + dz), rotation=rot),
+                                    material=SceneMaterial(texture=str(sheet.path), uv_scale=(1.0 / sw, 1.0 / sh),
+                                                           roughness=0.7, specular=0.3)))
+            credits += list(sheet.credits)
+    return meshes, credits, spans
 
 
 def _free(wall: str, s: float, w: float, bottom: float, window, W: float, D: float, placed: list[Placed],
@@ -565,7 +618,10 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     lights = _lights(rng, W, D, H, window, placed, small, params) + desk_lights
     world = World(envmap=OUTDOOR_HDRIS[int(rng.integers(len(OUTDOOR_HDRIS)))], strength=float(rng.uniform(0.4, 0.9)),
                   rotation=float(rng.uniform(0, 360)))
-    hung, hung_credits = pictures(rng, W, D, H, window, placed, params.pictures, picture_library.available())
+    boards, board_credits, spans = pinboards(rng, W, D, window, placed, cache) if params.density > 0 else ([], [], [])
+    meshes += boards
+    hung, hung_credits = pictures(rng, W, D, H, window, placed, params.pictures, picture_library.available(), spans)
+    hung_credits = board_credits + hung_credits
     meshes += hung
     sf = SceneFile(name=f"random_room_{kind}", meshes=meshes, lights=lights, world=world, focus=focus,
                    description=f"random_room seed {seed}, kind {kind}, {len(placed)} pieces of furniture")
