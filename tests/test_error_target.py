@@ -9,6 +9,8 @@ backends/cycles/tests/test_cycles.py / backends/mitsuba/tests/test_mitsuba.py.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -196,6 +198,67 @@ def test_render_to_target_ends_within_its_budget_in_pairs_and_is_deterministic(s
     assert runs[0].result.linear.tobytes() == runs[1].result.linear.tobytes() and runs[0].stats() == runs[1].stats()
 
 
+def squares(n: int) -> int:
+    """A stratified sampler's counts: the next square."""
+    return math.isqrt(n - 1) ** 2 + 2 * math.isqrt(n - 1) + 1 if n > 1 else 1
+
+
+def fours(n: int) -> int:
+    """A (0, 2)-sequence sampler's counts: the next power of four, at least 4."""
+    return 4 ** max(1, math.ceil(math.log(n, 4) - 1e-12)) if n > 1 else 4
+
+
+class Rounding(NoisyRenderer):
+    """A renderer whose sampler takes ``counts(n)`` samples when asked for ``n``, as it reports;
+    ``asked`` holds the requests."""
+
+    def __init__(self, mu, sigma, seed, counts, denoised: bool) -> None:
+        super().__init__(mu, sigma, seed)
+        self.counts, self.denoised, self.asked = counts, denoised, []
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        from scipy.ndimage import uniform_filter
+
+        self.asked.append(samples)
+        res = super().__call__(self.counts(samples), i)
+        if not self.denoised:
+            return res
+        return RenderResult(res.rgb, uniform_filter(res.linear, size=(3, 3, 1), mode="nearest"), res.stats, noisy=res.linear)
+
+
+@given(n=st.integers(1, 5000))
+def test_the_stand_in_samplers_round_as_mitsubas(n):
+    r = math.isqrt(squares(n))
+    assert r * r == squares(n) >= n > (r - 1) ** 2
+    assert fours(n) >= n and fours(n) in {4**k for k in range(1, 8)} and (fours(n) == 4 or fours(n) // 4 < n)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.01, 10.0), start=st.integers(1, 40), paper=st.integers(1, 400),
+       extra=st.integers(0, 600), denoised=st.booleans(), kind=st.sampled_from(["squares", "fours"]))
+def test_a_rounding_sampler_keeps_to_the_budget(seed, sigma, start, paper, extra, denoised, kind):
+    """A renderer that rounds a count up (Mitsuba's stratified sampler to a square, ldsampler to a
+    power of four) never carries an image past max_samples: every render is asked for a count it
+    takes, the samples it took are the ones counted, and the loop still stops at its target or at
+    the end of the budget. (Planning with the counts asked for took 242 against 225.)"""
+    counts = {"squares": squares, "fours": fours}[kind]
+    target = ErrorTarget(paper_samples=paper, start_samples=start, max_samples=2 * counts(start) + extra, counts=counts)
+    r = Rounding(scene(seed)[::6, ::6], sigma, seed, counts, denoised)
+    done = render_to_target(r, target, linear_to_srgb8)
+    assert r.asked == r.calls and done.samples == sum(r.calls) <= target.max_samples
+    assert all(counts(n) == n for n in r.calls) and r.calls[:2] == [counts(start)] * 2
+    # short of its target only when no pair of the sampler's counts fits what is left
+    assert done.error <= done.target or 2 * counts(1) > target.max_samples - done.samples
+
+
+@pytest.mark.parametrize(("asked", "left", "counts", "got"), [
+    (72, 145, squares, 64), (6, 145, squares, 9), (40, 20, squares, 9), (3, 7, squares, 1), (1, 1, squares, 0),
+    (72, 145, fours, 64), (5, 30, fours, 4), (1, 7, fours, 0), (72, 145, None, 72), (100, 145, None, 72),
+])
+def test_a_pair_takes_the_nearest_count_the_sampler_renders_that_fits(asked, left, counts, got):
+    assert ErrorTarget(225, 1 if counts is not fours else 4, 225, counts=counts).per_render(asked, left) == got
+
+
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 5.0), paper=st.integers(4, 400))
 def test_raw_renders_stop_at_the_first_pair_that_reaches_the_paper_samples(seed, sigma, paper):
@@ -240,6 +303,27 @@ def test_backend_samples_start_an_error_target_and_every_render_takes_its_own():
     assert plugin.options_for(BackendOptions(name="x"), q).samples is None
     assert plugin.error_target(BackendOptions(name="x"), q).start_samples == 2
     assert plugin.options_for(spec, Quality(level="high")).samples == 64  # control: samples keeps them
+
+
+def test_max_samples_is_a_bound_that_the_first_pair_is_made_to_fit():
+    """quality.max_samples is never raised: backend.samples 64 under a budget of 100 made the
+    budget 128; the first pair now shrinks to fit it, to a count the renderer takes. Without
+    max_samples the budget is the paper's samples, or the first pair as the renderer takes it."""
+    from specsynth.plugins import BackendPlugin
+    from specsynth.spec.models import BackendOptions, Quality
+
+    plain = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
+    bounded = Quality(level="high", control="error", max_samples=100)
+    assert plain.error_target(BackendOptions(name="x", samples=64), bounded) == ErrorTarget(225, 50, 100)
+    rounding = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sample_counts=lambda o, n: squares(n))
+    t = rounding.error_target(BackendOptions(name="x", samples=64), bounded)
+    assert (t.start_samples, t.max_samples, t.taken(50)) == (49, 100, 64)
+    free = Quality(level="high", control="error")
+    assert rounding.error_target(BackendOptions(name="x", samples=150), free).max_samples == 2 * 169
+    assert rounding.error_target(BackendOptions(name="x", samples=8), free).start_samples == 9
+    fourfold = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sample_counts=lambda o, n: fours(n))
+    with pytest.raises(ValueError, match="fits no pair of renders.*at least 4 samples"):
+        fourfold.error_target(BackendOptions(name="x"), Quality(level="high", control="error", max_samples=7))
 
 
 def test_an_image_without_noise_is_at_its_target_everywhere_it_is_counted(tmp_path):

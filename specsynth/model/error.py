@@ -80,15 +80,47 @@ class ErrorTarget:
     """One image rendered until its estimated error reaches the paper preset's."""
 
     paper_samples: int  # samples per pixel of the paper preset whose error is the target
-    start_samples: int  # samples per render of the first pair (and of every later one)
+    start_samples: int  # samples per render of the first pair
     max_samples: int  # the image's total budget: never more than this many samples per pixel
     # An image stops when its estimate plus this many standard errors of it is at the target:
     # 1.645, one-sided 95 %: the error of about 19 in 20 images is at most the target.
     confidence: float = 1.645
+    # The samples per pixel a render takes when asked for n (at least n, rising with n): a sampler
+    # that rounds a count up (Mitsuba's stratified, to a square) would otherwise carry the last
+    # pair past the budget. None: every count as asked (BackendPlugin.sample_counts).
+    counts: Callable[[int], int] | None = None
 
     def __post_init__(self) -> None:
-        if min(self.paper_samples, self.start_samples) < 1 or self.max_samples < 2 * self.start_samples:
+        if min(self.paper_samples, self.start_samples) < 1 or self.max_samples < 2 * self.taken(self.start_samples):
             raise ValueError(f"an error target needs at least 1 sample per render and a budget of two: {self}")
+
+    def taken(self, n: int) -> int:
+        """The samples per pixel a render asked for ``n`` takes."""
+        return taken(self.counts, n)
+
+    def per_render(self, n: int, left: int) -> int:
+        return per_render(self.counts, n, left)
+
+
+def taken(counts: Callable[[int], int] | None, n: int) -> int:
+    """The samples per pixel a render asked for ``n`` takes (``ErrorTarget.counts``)."""
+    return n if counts is None else int(counts(n))
+
+
+def per_render(counts: Callable[[int], int] | None, n: int, left: int) -> int:
+    """Samples per render of a pair asked for about ``n`` with ``left`` samples per pixel of the
+    budget: the count the renderer takes for ``n``, else the largest it takes that fits (the
+    counts rise with the request: bisection); 0 when no pair fits."""
+    cap = left // 2
+    if cap < 1 or taken(counts, 1) > cap:
+        return 0
+    if taken(counts, n) <= cap:
+        return taken(counts, n)
+    lo, hi = 1, min(n, cap)  # taken(lo) fits
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if taken(counts, mid) <= cap else (lo, mid - 1)
+    return taken(counts, lo)
 
 
 @dataclass
@@ -199,6 +231,9 @@ def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int,
     for g in (0, 1):
         res = render(n, first + g)
         took.append(int(res.stats.get("samples", res.stats.get("spp", n))))
+        if took[-1] > n:  # the budget is planned with the counts the renderer says it takes
+            raise RuntimeError(f"a render asked for {n} samples per pixel took {took[-1]}: the backend's plugin must "
+                               "say how it rounds sample counts (BackendPlugin.sample_counts)")
         raw.add(g, res.noisy if res.noisy is not None else res.linear, took[-1])
         for k, v in (res.stats.get("phases") or {}).items():  # the image's time is every render's
             phases[k] = phases.get(k, 0.0) + v
@@ -217,7 +252,7 @@ def _next_step(history: list[tuple[int, float]], n: int, spent: int, paper: floa
     den_need = 2 * math.ceil(samples_needed(history, paper) / 2) if history else None
     den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
     n = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
-    return min(sample_step(n), (target.max_samples - spent) // 2), den_step
+    return target.per_render(sample_step(n), target.max_samples - spent), den_step
 
 
 def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
@@ -234,7 +269,7 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
     independently. The image is the candidate with the lower bound; the next step is the
     cheaper way to the target (``_next_step``)."""
     raw, history, phases = _Raw(), [], {}
-    n, renders, spent, den_step = target.start_samples, 0, 0, True
+    n, renders, spent, den_step = target.per_render(target.start_samples, target.max_samples), 0, 0, True
     while True:
         pair, took = _render_pair(render, n, renders, raw, phases)
         renders, spent = renders + 2, spent + sum(took)
@@ -242,7 +277,7 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
         if len(candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
             history.append((sum(took), candidates[1].upper))
         best = min(candidates, key=lambda c: c.upper)  # the raw one on a tie
-        if best.upper <= paper or spent + 2 > target.max_samples:
+        if best.upper <= paper:
             break
         n, den_step = _next_step(history, n, spent, paper, target)
         if n < 1:

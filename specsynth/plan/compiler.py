@@ -101,9 +101,11 @@ def check_room_categories(ref, i: int, loaded: LoadedSpec) -> list:
 
 
 def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
-    """Located problems for a camera effect the spec's backend cannot render."""
+    """Located problems for a camera effect the spec's backend cannot render, or an error target it
+    cannot keep (no sampling noise; a budget no pair of its sample counts fits)."""
     problems = []
-    caps = backend_plugin(spec.backend.name).capabilities
+    plugin = backend_plugin(spec.backend.name)
+    caps = plugin.capabilities
     for name, what in (("depth_of_field", "depth of field"), ("motion_blur", "motion blur")):
         if getattr(spec.cameras, name) is not None and not getattr(caps, name):
             problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
@@ -112,6 +114,11 @@ def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
     if spec.quality.control == "error" and not caps.sampling_noise:
         problems.append(loaded.locate("quality.control", f"backend {spec.backend.name!r} has no sampling noise to "
                                       "control (its plugin does not declare sampling_noise); use control: samples"))
+    elif spec.quality.control == "error":
+        try:
+            plugin.error_target(spec.backend, spec.quality)
+        except ValueError as e:
+            problems.append(loaded.locate("quality.max_samples", str(e)))
     return problems
 
 
