@@ -305,6 +305,44 @@ def test_backend_samples_start_an_error_target_and_every_render_takes_its_own():
     assert plugin.options_for(spec, Quality(level="high")).samples == 64  # control: samples keeps them
 
 
+class Reporting(SmallDenoiser):
+    """Renders that report, as a backend does, a setting (the same for all) and what differs per
+    render: its samples, seed and time; every result kept."""
+
+    def __init__(self, mu, sigma, seed, denoised: bool) -> None:
+        super().__init__(mu, sigma, seed)
+        self.denoised, self.results = denoised, []
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        res = super().__call__(samples, i) if self.denoised else NoisyRenderer.__call__(self, samples, i)
+        res = RenderResult(res.rgb, res.linear, {**res.stats, "spp": samples, "seed": 100 + i, "seconds": 0.1 * samples,
+                                                 "max_depth": 6}, noisy=res.noisy)
+        self.results.append(res)
+        return res
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 5.0), paper=st.integers(4, 400), denoised=st.booleans())
+def test_the_record_describes_the_image_kept(seed, sigma, paper, denoised):
+    """The image's stats are those of the image written: what the backend reported alike for
+    every render it is made of (the last render's spp and seed stood beside the samples of all of
+    them), the samples in it and whether it is the denoised pair, and the image is that candidate."""
+    r = Reporting(scene(seed)[::6, ::6], sigma, seed, denoised)
+    done = render_to_target(r, ErrorTarget(paper_samples=paper, start_samples=2, max_samples=2 * paper), linear_to_srgb8)
+    halves = [sum(res.stats["spp"] * np.asarray(res.noisy if res.noisy is not None else res.linear, np.float64)
+                  for res in r.results[g::2]) / sum(res.stats["spp"] for res in r.results[g::2]) for g in (0, 1)]
+    kept_pair = denoised and np.allclose(done.result.linear, (r.results[-2].linear + r.results[-1].linear) / 2, atol=1e-6)
+    assert kept_pair or np.allclose(done.result.linear, (halves[0] + halves[1]) / 2, atol=1e-6)
+    made_of = r.results[-2:] if kept_pair else r.results
+    for key in ("spp", "seed", "seconds", "max_depth", "samples"):
+        if key in done.result.stats:
+            assert all(res.stats[key] == done.result.stats[key] for res in made_of), key
+    assert done.result.stats["max_depth"] == 6  # a setting every render shares stays
+    assert done.stats()["image_samples"] == sum(res.stats["spp"] for res in made_of)
+    assert done.stats()["denoised"] == kept_pair
+    assert done.result.stats["phases"]["trace"] == pytest.approx(0.5 * done.renders)
+
+
 def test_max_samples_is_a_bound_that_the_first_pair_is_made_to_fit():
     """quality.max_samples is never raised: backend.samples 64 under a budget of 100 made the
     budget 128; the first pair now shrinks to fit it, to a count the renderer takes. Without

@@ -125,18 +125,23 @@ def per_render(counts: Callable[[int], int] | None, n: int, left: int) -> int:
 
 @dataclass
 class TargetedResult:
-    result: RenderResult  # the image: every render's raw samples together, denoised
+    # The image kept: the mean of every render's raw samples, or the last pair denoised and
+    # averaged; its stats hold what the backend reported alike for every render it is made of.
+    result: RenderResult
     samples: int  # samples per pixel spent, over all renders
     renders: int
     error: float  # estimated relative MSE of the result
     target: float  # estimated relative MSE of the paper preset at this view
-    history: list[tuple[int, float]] = field(default_factory=list)  # (samples so far, upper bound) per step
+    # (the pair's samples, its denoised mean's upper bound) per pair rendered for the denoised way
+    history: list[tuple[int, float]] = field(default_factory=list)
     error_se: float = 0.0  # the estimate's standard error
+    image_samples: int = 0  # samples per pixel in the result: all spent (raw), the last pair's (denoised)
+    denoised: bool = False  # the result is the last pair denoised by the backend
 
     def stats(self) -> dict:
-        return {"samples": self.samples, "renders": self.renders, "error_estimate": self.error,
-                "error_se": self.error_se, "error_target": self.target,
-                "error_ratio": float(error_ratio(self.error, self.target))}
+        return {"samples": self.samples, "renders": self.renders, "image_samples": self.image_samples,
+                "denoised": self.denoised, "error_estimate": self.error, "error_se": self.error_se,
+                "error_target": self.target, "error_ratio": float(error_ratio(self.error, self.target))}
 
 
 def error_ratio(estimate, target) -> np.ndarray:
@@ -196,14 +201,18 @@ class _Candidate:
     # The estimate plus ``confidence`` standard errors of (estimate - target): the target's own
     # noise counted too, and nothing twice where both come from the same renders.
     upper: float
+    samples: int  # samples per pixel in the image
+    denoised: bool
 
 
-def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, confidence: float) -> _Candidate:
+def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, confidence: float, samples: int,
+               denoised: bool) -> _Candidate:
     error, se = mean_and_error(error_map)
-    return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1])
+    return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1], samples, denoised)
 
 
-def _candidates(raw: _Raw, pair: list[RenderResult], paper_samples: int, confidence: float) -> tuple[float, list[_Candidate]]:
+def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], paper_samples: int,
+                confidence: float) -> tuple[float, list[_Candidate]]:
     """(the paper preset's estimated error at this view, [the raw candidate, the denoised one
     when the backend denoises]). One normaliser for all of them, the denoised mean where there is
     one: the raw mean of a few samples is so noisy that ``1 / (norm² + ε)`` of it inflates the
@@ -215,11 +224,11 @@ def _candidates(raw: _Raw, pair: list[RenderResult], paper_samples: int, confide
     raw_map = ((a - b) ** 2 / 4 / norm2).mean(axis=-1)
     # the raw mean's error scaled from its samples to the paper's (see extrapolated_rel_mse)
     paper_map = raw_map * 2 * min(raw.counts) / paper_samples
-    out = [_candidate(raw_image, raw_map, paper_map, confidence)]
+    out = [_candidate(raw_image, raw_map, paper_map, confidence, sum(raw.counts), False)]
     if den_image is not None:
         (x, y) = pair
         den_map = denoised_rel_mse_map(x.linear, y.linear, x.noisy, y.noisy, norm=den_image).mean(axis=-1)
-        out.append(_candidate(den_image, den_map, paper_map, confidence))
+        out.append(_candidate(den_image, den_map, paper_map, confidence, sum(took), True))
     return float(paper_map.mean()), out
 
 
@@ -268,12 +277,13 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
     estimate needs nothing of the denoiser but that it treats the two renders alike and
     independently. The image is the candidate with the lower bound; the next step is the
     cheaper way to the target (``_next_step``)."""
-    raw, history, phases = _Raw(), [], {}
+    raw, history, phases, reported = _Raw(), [], {}, []
     n, renders, spent, den_step = target.per_render(target.start_samples, target.max_samples), 0, 0, True
     while True:
         pair, took = _render_pair(render, n, renders, raw, phases)
         renders, spent = renders + 2, spent + sum(took)
-        paper, candidates = _candidates(raw, pair, target.paper_samples, target.confidence)
+        reported += [res.stats for res in pair]
+        paper, candidates = _candidates(raw, pair, took, target.paper_samples, target.confidence)
         if len(candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
             history.append((sum(took), candidates[1].upper))
         best = min(candidates, key=lambda c: c.upper)  # the raw one on a tie
@@ -283,5 +293,22 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
         if n < 1:
             break
     linear = best.image.astype(np.float32)
-    res = RenderResult(rgb=encode(linear), linear=linear, stats={**pair[-1].stats, "phases": phases})
-    return TargetedResult(res, spent, renders, best.error, paper, history, best.se)
+    # The kept image's record: what the backend reported alike for every render it is made of (a
+    # setting), not the last render's count, seed or time (Mitsuba's spp of the last pair stood
+    # beside the samples of all of them); the time is every render's.
+    made_of = reported[-2:] if best.denoised else reported
+    res = RenderResult(rgb=encode(linear), linear=linear, stats={**shared_stats(made_of), "phases": phases})
+    return TargetedResult(res, spent, renders, best.error, paper, history, best.se, best.samples, best.denoised)
+
+
+def shared_stats(reported: list[dict]) -> dict:
+    """The entries every one of ``reported`` has with one value (the phases aside)."""
+    first, rest = reported[0], reported[1:]
+    return {k: v for k, v in first.items() if k != "phases" and all(k in r and _same(r[k], v) for r in rest)}
+
+
+def _same(a, b) -> bool:
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):  # arrays and the like: not a setting
+        return False
