@@ -250,18 +250,53 @@ def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int,
     return pair, took
 
 
-def _next_step(history: list[tuple[int, float]], n: int, spent: int, paper: float,
+def _next_step(histories: list[list[tuple[int, float]]], n: int, spent: int, papers: list[float],
                target: ErrorTarget) -> tuple[int, bool]:
-    """(samples per render of the next pair, whether it is a new pair for the denoised way): the
-    cheaper way on. More raw samples reach the target at the paper's samples whatever the scene
-    (the raw mean's error and the target are one variance, at ``spent`` and at the paper's
-    samples); a new, larger denoised pair (whose samples are all new) is chosen only at half the
-    cost of the raw way, its fall being predicted. 0 samples: the budget is spent."""
+    """(samples per render of the next pairs, whether they are new pairs for the denoised way): the
+    cheaper way on for the image furthest from its target. More raw samples reach the target at
+    the paper's samples whatever the scene (the raw mean's error and the target are one variance,
+    at ``spent`` and at the paper's samples); new, larger denoised pairs (whose samples are all
+    new) are chosen only at half the cost of the raw way, their fall being predicted. 0 samples:
+    the budget is spent."""
     raw_need = max(1, target.paper_samples - spent)
-    den_need = 2 * math.ceil(samples_needed(history, paper) / 2) if history else None
+    den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
     den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
     n = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
     return target.per_render(sample_step(n), target.max_samples - spent), den_step
+
+
+class _Progress:
+    """One image of a group on its way to its target: its raw halves, what its renders reported,
+    and the last step's candidates."""
+
+    def __init__(self, render: Callable[[int, int], RenderResult]) -> None:
+        self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
+        self.spent, self.paper, self.candidates = 0, 0.0, []
+
+    def step(self, n: int, first: int, target: ErrorTarget, den_step: bool) -> None:
+        pair, took = _render_pair(self.render, n, first, self.raw, self.phases)
+        self.spent += sum(took)
+        self.reported += [res.stats for res in pair]
+        self.paper, self.candidates = _candidates(self.raw, pair, took, target.paper_samples, target.confidence)
+        if len(self.candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
+            self.history.append((sum(took), self.candidates[1].upper))
+
+    def over(self, kind: int) -> float:
+        """The candidate's upper bound over the target (an image without noise, target 0, is at it
+        with a bound of 0)."""
+        upper = self.candidates[kind].upper
+        return upper / self.paper if self.paper > 0 else (0.0 if upper <= 0 else math.inf)
+
+    def result(self, kind: int, renders: int, encode: Callable[[np.ndarray], np.ndarray]) -> TargetedResult:
+        best = self.candidates[kind]
+        linear = best.image.astype(np.float32)
+        # The kept image's record: what the backend reported alike for every render it is made of
+        # (a setting), not the last render's count, seed or time (Mitsuba's spp of the last pair
+        # stood beside the samples of all of them); the time is every render's.
+        made_of = self.reported[-2:] if best.denoised else self.reported
+        res = RenderResult(rgb=encode(linear), linear=linear, stats={**shared_stats(made_of), "phases": self.phases})
+        return TargetedResult(res, self.spent, renders, best.error, self.paper, self.history, best.se, best.samples,
+                              best.denoised)
 
 
 def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
@@ -277,28 +312,33 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
     estimate needs nothing of the denoiser but that it treats the two renders alike and
     independently. The image is the candidate with the lower bound; the next step is the
     cheaper way to the target (``_next_step``)."""
-    raw, history, phases, reported = _Raw(), [], {}, []
-    n, renders, spent, den_step = target.per_render(target.start_samples, target.max_samples), 0, 0, True
+    return render_group_to_target([render], target, encode)[0]
+
+
+def render_group_to_target(renders: list[Callable[[int, int], RenderResult]], target: ErrorTarget,
+                           encode: Callable[[np.ndarray], np.ndarray]) -> list[TargetedResult]:
+    """Several images of one view (a stereo rig's eyes) rendered to their targets as one
+    (``render_to_target`` for one image): each step renders a pair of every image with the same
+    samples and render indices, the next step is the one the image furthest from its target
+    needs, and all stop together when every image is at its target or the budget is spent. Each
+    keeps the same kind of candidate (raw mean or denoised pair: the one whose image furthest
+    from its target is nearest), so the images of a pair carry the same samples and treatment
+    and only their own content's error tells them apart."""
+    images = [_Progress(render) for render in renders]
+    n, count, den_step = target.per_render(target.start_samples, target.max_samples), 0, True
     while True:
-        pair, took = _render_pair(render, n, renders, raw, phases)
-        renders, spent = renders + 2, spent + sum(took)
-        reported += [res.stats for res in pair]
-        paper, candidates = _candidates(raw, pair, took, target.paper_samples, target.confidence)
-        if len(candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
-            history.append((sum(took), candidates[1].upper))
-        best = min(candidates, key=lambda c: c.upper)  # the raw one on a tie
-        if best.upper <= paper:
+        for image in images:
+            image.step(n, count, target, den_step)
+        count += 2
+        kinds = range(min(len(image.candidates) for image in images))
+        kind = min(kinds, key=lambda k: max(image.over(k) for image in images))  # the raw mean on a tie
+        if all(image.candidates[kind].upper <= image.paper for image in images):
             break
-        n, den_step = _next_step(history, n, spent, paper, target)
+        spent = max(image.spent for image in images)
+        n, den_step = _next_step([image.history for image in images], n, spent, [image.paper for image in images], target)
         if n < 1:
             break
-    linear = best.image.astype(np.float32)
-    # The kept image's record: what the backend reported alike for every render it is made of (a
-    # setting), not the last render's count, seed or time (Mitsuba's spp of the last pair stood
-    # beside the samples of all of them); the time is every render's.
-    made_of = reported[-2:] if best.denoised else reported
-    res = RenderResult(rgb=encode(linear), linear=linear, stats={**shared_stats(made_of), "phases": phases})
-    return TargetedResult(res, spent, renders, best.error, paper, history, best.se, best.samples, best.denoised)
+    return [image.result(kind, count, encode) for image in images]
 
 
 def shared_stats(reported: list[dict]) -> dict:

@@ -408,7 +408,7 @@ def _drawer(backend, preset: QualityPreset, target, clamp):
     as a build makes them (the same seeds)."""
     if target is None:
         return lambda cam, seed: backend.render(cam, preset, seed, clamp=clamp)
-    return lambda cam, seed: draw_to_target(backend, cam, preset, seed, target, clamp)
+    return lambda cam, seed: draw_to_target(backend, [cam], preset, seed, target, clamp)[0][0]
 
 
 def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:

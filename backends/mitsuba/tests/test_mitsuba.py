@@ -533,7 +533,7 @@ def test_an_error_target_keeps_to_max_samples_with_a_rounding_sampler(tmp_path, 
         b.load(scene)
         for seed in range(3):
             taken.clear()
-            res = draw_to_target(b, cam, quality.resolved(), seed, target, None)
+            res = draw_to_target(b, [cam], quality.resolved(), seed, target, None)[0][0]
             assert res.stats["samples"] == sum(taken) <= 225, taken
             assert len(taken) == res.stats["renders"] >= 4  # more than one pair: the budget mattered
     finally:
