@@ -449,6 +449,24 @@ def test_error_control_needs_a_backend_with_sampling_noise(tmp_path):
     assert "quality.control" in str(e.value) and "t.yaml:13:" in str(e.value)
 
 
+def test_targeted_renders_are_keyed_by_the_error_controls_revision(tmp_path, monkeypatch):
+    """A build's cached image made by earlier error-control code is rendered again, never read
+    (its samples, record and stereo eyes were that code's); under control: samples, and for the
+    arrangements and views, the keys stay."""
+    import specsynth.model.error as error
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles"))
+    targeted, plain = compile_spec(load_spec(f)), compile_spec(load_spec(f, ["quality.control=samples"]))
+    monkeypatch.setattr(error, "REVISION", error.REVISION + 1)
+    again = compile_spec(load_spec(f))
+    assert again.stage_digests["render"] != targeted.stage_digests["render"]
+    assert {s: again.stage_digests[s] for s in ("arrange", "view")} == {s: targeted.stage_digests[s] for s in ("arrange", "view")}
+    assert compile_spec(load_spec(f, ["quality.control=samples"])).stage_digests == plain.stage_digests
+
+
 @pytest.mark.slow
 def test_a_build_records_samples_and_error_per_image(tmp_path):
     """Cycles renders each image to its target; the record, timings.parquet, summary.json and

@@ -23,6 +23,7 @@ from ..assets.resolve import (
     file_digest,
     object_fingerprints,
 )
+from ..model import error as error_control
 from ..output_api import active_products
 from ..plugins import backend_plugin, dist_version, output_fingerprint
 from ..scenes import FIXED_ROOMS, PROCEDURAL, declares_stages, generated_name, scene_fingerprint, stage_table
@@ -323,6 +324,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     extra = {"arrange": dict(asset_hashes), "view": {"annotator": f"pyrender {dist_version('pyrender')}"},
              "render": {"backend": backend, "products": product_fingerprints(inputs.render),
                         **_input_folders(spec, loaded)}}
+    if spec.quality.control == "error":  # only these renders are the error control's
+        extra["render"]["error_control"] = f"revision {error_control.REVISION}"
     # A stage's key: the digest of its whole inputs model, and what it reads besides the spec.
     stage_digests = {s: keys.stage_digest(s, {"inputs": keys.digest(getattr(inputs, s).model_dump(mode="json")),
                                               **extra[s]}) for s in STAGES}
