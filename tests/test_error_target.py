@@ -408,6 +408,29 @@ def test_an_image_without_noise_is_at_its_target_everywhere_it_is_counted(tmp_pa
     assert table["error_control"]["error_ratio_median"] == pytest.approx(summary["error_ratio"]["median"])
 
 
+def test_specsynth_stats_counts_a_stereo_builds_right_eyes_as_summary_json_does(tmp_path):
+    """The right eyes' records are in timings_right.parquet: `specsynth stats` read only
+    timings.parquet and counted half of a stereo build's images, which summary.json counts all of."""
+    import pandas as pd
+
+    from specsynth.outputs.parquet import error_columns
+    from specsynth.outputs.qa import error_stats
+    from specsynth.run.summary import error_control_summary
+
+    eyes = [render_group_to_target([NoisyRenderer(scene(k), sigma, k) for sigma in (0.3, 3.0)], ErrorTarget(225, 2, 225),
+                                   linear_to_srgb8) for k in (1, 2)]
+    left, right = [[view[eye].stats() for view in eyes] for eye in (0, 1)]
+    (tmp_path / "parquet").mkdir()
+    for suffix, stats in (("", left), ("_right", right)):
+        pd.DataFrame([{"render_seconds": 1.0, **error_columns(s)} for s in stats]).to_parquet(
+            tmp_path / "parquet" / f"timings{suffix}.parquet")
+    table = error_stats(tmp_path, tmp_path)["error_control"]
+    summary = error_control_summary(left + right)
+    assert table["images"] == summary["images"] == 4
+    assert table["error_ratio_median"] == pytest.approx(summary["error_ratio"]["median"])
+    assert table["samples_median"] == summary["samples"]["median"]
+
+
 def test_error_target_refuses_an_empty_budget():
     with pytest.raises(ValueError, match="at least 1 sample"):
         ErrorTarget(paper_samples=100, start_samples=0, max_samples=100)
