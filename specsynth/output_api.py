@@ -87,6 +87,13 @@ class ViewProduct:
         """Write this image's files into ``view.folder``; their names by kind."""
         return {}
 
+    def other_images(self, inputs: Any, t_w2c: Sequence[float]) -> dict[str, list[float]]:
+        """The images this product adds to a view with ``view.render_eye`` (folder -> camera
+        position), known before the view's own is drawn: the render step draws every image of a
+        view first, and under ``quality.control: error`` to one schedule (a stereo pair's eyes
+        then carry the same samples). An image not announced here is drawn on its own."""
+        return {}
+
     def finish(self, record: ImageRecord, view: View) -> ImageRecord:
         """The view's record once its image is complete (called once per view, not per eye): a
         product that adds another image of the view (``view.render_eye``) links it here."""

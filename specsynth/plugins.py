@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
+from functools import partial
 from importlib import metadata
-from typing import Any
+from typing import Any, Callable
 
 BACKEND_GROUP = "specsynth.backends"
 EXECUTOR_GROUP = "specsynth.executors"
@@ -108,6 +109,11 @@ class BackendPlugin:
     checks: str = ""
     # `specsynth init` writes the installed backend with the lowest rank into a starter spec.
     default_rank: int = 100
+    # (options, n) -> the samples per pixel a render takes when asked for n (at least n, rising
+    # with n), when the renderer rounds a count: Mitsuba's stratified sampler renders the next
+    # square, so an error target that planned with n carried an image past quality.max_samples
+    # (242 against 225). None: every count as asked. Cheap: no renderer is imported.
+    sample_counts: Callable[[Any, int], int] | None = None
 
     def options_for(self, options: Any, quality: Any) -> Any:
         """The spec's options with the level's calibration filled in where the spec is silent.
@@ -130,15 +136,22 @@ class BackendPlugin:
     def error_target(self, options: Any, quality: Any):
         """``quality.control: error``: the paper preset's samples (whose error is the target), the
         samples per render of the first pair (the spec's own ``options``' samples, else half the
-        level's calibrated samples: the first pair costs what one calibrated render does) and the
-        image's budget."""
-        from .model.error import ErrorTarget
+        level's calibrated samples: the first pair costs what one calibrated render does, each as
+        the renderer takes it) and the image's budget. ``quality.max_samples`` is a bound, never
+        raised: the first pair is made smaller to fit it, and a budget no pair of the renderer's
+        counts fits is a ValueError (``validate`` reports it)."""
+        from .model.error import ErrorTarget, per_render, taken
 
         paper = quality.resolved().samples
         cal = self.calibrated.get(quality.paper_level, {}) if quality.calibrated else {}
-        start = options.samples or max(1, int(cal.get("samples", 2)) // 2)
-        budget = quality.max_samples or max(paper, 2 * start)
-        return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=max(budget, 2 * start))
+        counts = partial(self.sample_counts, options) if self.sample_counts is not None else None
+        want = options.samples or max(1, int(cal.get("samples", 2)) // 2)
+        budget = quality.max_samples or max(paper, 2 * taken(counts, want))
+        start = per_render(counts, want, budget)
+        if start < 1:
+            raise ValueError(f"quality.max_samples {budget} fits no pair of renders: backend {self.name!r} renders "
+                             f"at least {taken(counts, 1)} samples per pixel per render")
+        return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=budget, counts=counts)
 
     def load_class(self) -> type:
         mod, _, attr = self.backend.partition(":")

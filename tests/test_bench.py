@@ -132,6 +132,51 @@ def test_bench_refuses_an_unknown_setting_before_building_anything(tmp_path):
     assert not out.exists()
 
 
+def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_path):
+    """Under an error target each view takes its own samples: the row's samples are their mean,
+    as its seconds and errors are (the row reported the last view's). A stand-in renderer whose
+    views differ in noise, through the bench's own setting and drawing."""
+    from types import SimpleNamespace
+
+    from scipy.ndimage import uniform_filter
+
+    from specsynth.model.colour import linear_to_srgb8
+    from specsynth.model.ir import RenderResult
+    from specsynth.plugins import BackendPlugin
+    from specsynth.run.bench import Setting, bench_setting
+    from specsynth.spec.models import BackendOptions, Quality
+
+    mu = np.full((24, 32, 3), 0.4)
+
+    class Noisy:  # view k's noise: sigma_k / sqrt(samples), denoised by a box filter
+        def __init__(self, options, threads=0):
+            pass
+
+        def load(self, scene):
+            pass
+
+        def render(self, cam, quality, seed, clamp=None):
+            n = quality.samples
+            x = (mu + [0.05, 2.0][cam] * mu / np.sqrt(n) * np.random.default_rng(seed).standard_normal(mu.shape))
+            x = x.astype(np.float32)
+            d = uniform_filter(x, size=(5, 5, 1), mode="nearest")  # its denoiser
+            return RenderResult(rgb=linear_to_srgb8(d), linear=d, stats={"samples": n}, noisy=x)
+
+        def close(self):
+            pass
+
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
+    spec = SimpleNamespace(quality=Quality(level="high"))
+    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
+    refs = {k: (mu.astype(np.float32), linear_to_srgb8(mu.astype(np.float32)), 0.0) for k in (0, 1)}
+    (tmp_path / "bench").mkdir()
+    row = bench_setting(plugin, Noisy, Setting("x", "high+targeted", "high", {"__control__": "error"}), {"name": "x"},
+                        spec, [(None, 0, 11), (None, 1, 12)], shots, refs, 1, tmp_path)
+    per_view = [v["samples"] for v in row.views]
+    assert per_view[0] != per_view[1]
+    assert row.samples == round(np.mean(per_view))
+
+
 @pytest.mark.slow
 def test_bench_targeted_row_and_cached_references(tmp_path):
     """`high+targeted` (quality.control: error) has per-view estimates and targets; a second run

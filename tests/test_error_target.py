@@ -9,6 +9,8 @@ backends/cycles/tests/test_cycles.py / backends/mitsuba/tests/test_mitsuba.py.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -21,6 +23,7 @@ from specsynth.model.error import (
     sample_step,
     samples_needed,
     rel_mse,
+    render_group_to_target,
     render_to_target,
     split_rel_mse,
 )
@@ -196,6 +199,67 @@ def test_render_to_target_ends_within_its_budget_in_pairs_and_is_deterministic(s
     assert runs[0].result.linear.tobytes() == runs[1].result.linear.tobytes() and runs[0].stats() == runs[1].stats()
 
 
+def squares(n: int) -> int:
+    """A stratified sampler's counts: the next square."""
+    return math.isqrt(n - 1) ** 2 + 2 * math.isqrt(n - 1) + 1 if n > 1 else 1
+
+
+def fours(n: int) -> int:
+    """A (0, 2)-sequence sampler's counts: the next power of four, at least 4."""
+    return 4 ** max(1, math.ceil(math.log(n, 4) - 1e-12)) if n > 1 else 4
+
+
+class Rounding(NoisyRenderer):
+    """A renderer whose sampler takes ``counts(n)`` samples when asked for ``n``, as it reports;
+    ``asked`` holds the requests."""
+
+    def __init__(self, mu, sigma, seed, counts, denoised: bool) -> None:
+        super().__init__(mu, sigma, seed)
+        self.counts, self.denoised, self.asked = counts, denoised, []
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        from scipy.ndimage import uniform_filter
+
+        self.asked.append(samples)
+        res = super().__call__(self.counts(samples), i)
+        if not self.denoised:
+            return res
+        return RenderResult(res.rgb, uniform_filter(res.linear, size=(3, 3, 1), mode="nearest"), res.stats, noisy=res.linear)
+
+
+@given(n=st.integers(1, 5000))
+def test_the_stand_in_samplers_round_as_mitsubas(n):
+    r = math.isqrt(squares(n))
+    assert r * r == squares(n) >= n > (r - 1) ** 2
+    assert fours(n) >= n and fours(n) in {4**k for k in range(1, 8)} and (fours(n) == 4 or fours(n) // 4 < n)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.01, 10.0), start=st.integers(1, 40), paper=st.integers(1, 400),
+       extra=st.integers(0, 600), denoised=st.booleans(), kind=st.sampled_from(["squares", "fours"]))
+def test_a_rounding_sampler_keeps_to_the_budget(seed, sigma, start, paper, extra, denoised, kind):
+    """A renderer that rounds a count up (Mitsuba's stratified sampler to a square, ldsampler to a
+    power of four) never carries an image past max_samples: every render is asked for a count it
+    takes, the samples it took are the ones counted, and the loop still stops at its target or at
+    the end of the budget. (Planning with the counts asked for took 242 against 225.)"""
+    counts = {"squares": squares, "fours": fours}[kind]
+    target = ErrorTarget(paper_samples=paper, start_samples=start, max_samples=2 * counts(start) + extra, counts=counts)
+    r = Rounding(scene(seed)[::6, ::6], sigma, seed, counts, denoised)
+    done = render_to_target(r, target, linear_to_srgb8)
+    assert r.asked == r.calls and done.samples == sum(r.calls) <= target.max_samples
+    assert all(counts(n) == n for n in r.calls) and r.calls[:2] == [counts(start)] * 2
+    # short of its target only when no pair of the sampler's counts fits what is left
+    assert done.error <= done.target or 2 * counts(1) > target.max_samples - done.samples
+
+
+@pytest.mark.parametrize(("asked", "left", "counts", "got"), [
+    (72, 145, squares, 64), (6, 145, squares, 9), (40, 20, squares, 9), (3, 7, squares, 1), (1, 1, squares, 0),
+    (72, 145, fours, 64), (5, 30, fours, 4), (1, 7, fours, 0), (72, 145, None, 72), (100, 145, None, 72),
+])
+def test_a_pair_takes_the_nearest_count_the_sampler_renders_that_fits(asked, left, counts, got):
+    assert ErrorTarget(225, 1 if counts is not fours else 4, 225, counts=counts).per_render(asked, left) == got
+
+
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 5.0), paper=st.integers(4, 400))
 def test_raw_renders_stop_at_the_first_pair_that_reaches_the_paper_samples(seed, sigma, paper):
@@ -242,6 +306,85 @@ def test_backend_samples_start_an_error_target_and_every_render_takes_its_own():
     assert plugin.options_for(spec, Quality(level="high")).samples == 64  # control: samples keeps them
 
 
+class Reporting(SmallDenoiser):
+    """Renders that report, as a backend does, a setting (the same for all) and what differs per
+    render: its samples, seed and time; every result kept."""
+
+    def __init__(self, mu, sigma, seed, denoised: bool) -> None:
+        super().__init__(mu, sigma, seed)
+        self.denoised, self.results = denoised, []
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        res = super().__call__(samples, i) if self.denoised else NoisyRenderer.__call__(self, samples, i)
+        res = RenderResult(res.rgb, res.linear, {**res.stats, "spp": samples, "seed": 100 + i, "seconds": 0.1 * samples,
+                                                 "max_depth": 6}, noisy=res.noisy)
+        self.results.append(res)
+        return res
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 5.0), paper=st.integers(4, 400), denoised=st.booleans())
+def test_the_record_describes_the_image_kept(seed, sigma, paper, denoised):
+    """The image's stats are those of the image written: what the backend reported alike for
+    every render it is made of (the last render's spp and seed stood beside the samples of all of
+    them), the samples in it and whether it is the denoised pair, and the image is that candidate."""
+    r = Reporting(scene(seed)[::6, ::6], sigma, seed, denoised)
+    done = render_to_target(r, ErrorTarget(paper_samples=paper, start_samples=2, max_samples=2 * paper), linear_to_srgb8)
+    halves = [sum(res.stats["spp"] * np.asarray(res.noisy if res.noisy is not None else res.linear, np.float64)
+                  for res in r.results[g::2]) / sum(res.stats["spp"] for res in r.results[g::2]) for g in (0, 1)]
+    kept_pair = denoised and np.allclose(done.result.linear, (r.results[-2].linear + r.results[-1].linear) / 2, atol=1e-6)
+    assert kept_pair or np.allclose(done.result.linear, (halves[0] + halves[1]) / 2, atol=1e-6)
+    made_of = r.results[-2:] if kept_pair else r.results
+    for key in ("spp", "seed", "seconds", "max_depth", "samples"):
+        if key in done.result.stats:
+            assert all(res.stats[key] == done.result.stats[key] for res in made_of), key
+    assert done.result.stats["max_depth"] == 6  # a setting every render shares stays
+    assert done.stats()["image_samples"] == sum(res.stats["spp"] for res in made_of)
+    assert done.stats()["denoised"] == kept_pair
+    assert done.result.stats["phases"]["trace"] == pytest.approx(0.5 * done.renders)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), sigmas=st.tuples(st.floats(0.05, 5.0), st.floats(0.05, 5.0)),
+       paper=st.integers(4, 400), denoised=st.booleans())
+def test_the_images_of_a_view_are_rendered_to_their_targets_as_one(seed, sigmas, paper, denoised):
+    """A stereo pair's eyes (two images of different noise) take the same samples in the same
+    renders and keep the same kind of image, and stop together: each at its target, or the budget
+    spent. Each eye on its own ended at its own samples (36 and 76 in a Cycles stereo build)."""
+    kind = SmallDenoiser if denoised else NoisyRenderer
+    eyes = [kind(scene(seed + k)[::6, ::6], sigma, seed + k) for k, sigma in enumerate(sigmas)]
+    target = ErrorTarget(paper_samples=paper, start_samples=2, max_samples=2 * paper)
+    done = render_group_to_target(eyes, target, linear_to_srgb8)
+    assert eyes[0].calls == eyes[1].calls
+    left, right = (d.stats() for d in done)
+    for key in ("samples", "renders", "image_samples", "denoised"):
+        assert left[key] == right[key], key
+    assert left["samples"] == sum(eyes[0].calls) <= target.max_samples
+    assert all(d.error <= d.target for d in done) or left["samples"] + 2 > target.max_samples
+    assert done[0].target != done[1].target  # each its own target
+
+
+def test_max_samples_is_a_bound_that_the_first_pair_is_made_to_fit():
+    """quality.max_samples is never raised: backend.samples 64 under a budget of 100 made the
+    budget 128; the first pair now shrinks to fit it, to a count the renderer takes. Without
+    max_samples the budget is the paper's samples, or the first pair as the renderer takes it."""
+    from specsynth.plugins import BackendPlugin
+    from specsynth.spec.models import BackendOptions, Quality
+
+    plain = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
+    bounded = Quality(level="high", control="error", max_samples=100)
+    assert plain.error_target(BackendOptions(name="x", samples=64), bounded) == ErrorTarget(225, 50, 100)
+    rounding = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sample_counts=lambda o, n: squares(n))
+    t = rounding.error_target(BackendOptions(name="x", samples=64), bounded)
+    assert (t.start_samples, t.max_samples, t.taken(50)) == (49, 100, 64)
+    free = Quality(level="high", control="error")
+    assert rounding.error_target(BackendOptions(name="x", samples=150), free).max_samples == 2 * 169
+    assert rounding.error_target(BackendOptions(name="x", samples=8), free).start_samples == 9
+    fourfold = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sample_counts=lambda o, n: fours(n))
+    with pytest.raises(ValueError, match="fits no pair of renders.*at least 4 samples"):
+        fourfold.error_target(BackendOptions(name="x"), Quality(level="high", control="error", max_samples=7))
+
+
 def test_an_image_without_noise_is_at_its_target_everywhere_it_is_counted(tmp_path):
     """A black image (target 0) stops after one pair; the record, summary.json and `specsynth
     stats` count it within its target alike (the summary left it out, stats counted it above)."""
@@ -263,6 +406,29 @@ def test_an_image_without_noise_is_at_its_target_everywhere_it_is_counted(tmp_pa
     table = error_stats(tmp_path, tmp_path)
     assert table["error_control"]["images"] == 2 and table["error_control"]["within_10_percent"] == 1.0
     assert table["error_control"]["error_ratio_median"] == pytest.approx(summary["error_ratio"]["median"])
+
+
+def test_specsynth_stats_counts_a_stereo_builds_right_eyes_as_summary_json_does(tmp_path):
+    """The right eyes' records are in timings_right.parquet: `specsynth stats` read only
+    timings.parquet and counted half of a stereo build's images, which summary.json counts all of."""
+    import pandas as pd
+
+    from specsynth.outputs.parquet import error_columns
+    from specsynth.outputs.qa import error_stats
+    from specsynth.run.summary import error_control_summary
+
+    eyes = [render_group_to_target([NoisyRenderer(scene(k), sigma, k) for sigma in (0.3, 3.0)], ErrorTarget(225, 2, 225),
+                                   linear_to_srgb8) for k in (1, 2)]
+    left, right = [[view[eye].stats() for view in eyes] for eye in (0, 1)]
+    (tmp_path / "parquet").mkdir()
+    for suffix, stats in (("", left), ("_right", right)):
+        pd.DataFrame([{"render_seconds": 1.0, **error_columns(s)} for s in stats]).to_parquet(
+            tmp_path / "parquet" / f"timings{suffix}.parquet")
+    table = error_stats(tmp_path, tmp_path)["error_control"]
+    summary = error_control_summary(left + right)
+    assert table["images"] == summary["images"] == 4
+    assert table["error_ratio_median"] == pytest.approx(summary["error_ratio"]["median"])
+    assert table["samples_median"] == summary["samples"]["median"]
 
 
 def test_error_target_refuses_an_empty_budget():
@@ -306,6 +472,24 @@ def test_error_control_needs_a_backend_with_sampling_noise(tmp_path):
     assert "quality.control" in str(e.value) and "t.yaml:13:" in str(e.value)
 
 
+def test_targeted_renders_are_keyed_by_the_error_controls_revision(tmp_path, monkeypatch):
+    """A build's cached image made by earlier error-control code is rendered again, never read
+    (its samples, record and stereo eyes were that code's); under control: samples, and for the
+    arrangements and views, the keys stay."""
+    import specsynth.model.error as error
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles"))
+    targeted, plain = compile_spec(load_spec(f)), compile_spec(load_spec(f, ["quality.control=samples"]))
+    monkeypatch.setattr(error, "REVISION", error.REVISION + 1)
+    again = compile_spec(load_spec(f))
+    assert again.stage_digests["render"] != targeted.stage_digests["render"]
+    assert {s: again.stage_digests[s] for s in ("arrange", "view")} == {s: targeted.stage_digests[s] for s in ("arrange", "view")}
+    assert compile_spec(load_spec(f, ["quality.control=samples"])).stage_digests == plain.stage_digests
+
+
 @pytest.mark.slow
 def test_a_build_records_samples_and_error_per_image(tmp_path):
     """Cycles renders each image to its target; the record, timings.parquet, summary.json and
@@ -336,3 +520,34 @@ def test_a_build_records_samples_and_error_per_image(tmp_path):
     assert len(recs) == 2 and all(r.stats["renders"] % 2 == 0 and r.stats["samples"] >= 2 for r in recs)
     table = dataset_stats(out, tmp_path / "stats")
     assert table["error_control"]["images"] == 2 and (tmp_path / "stats" / "quality.png").is_file()
+    for r in recs:  # the record describes the image written
+        assert r.stats["image_samples"] <= r.stats["samples"] and "seed" not in r.stats
+
+
+@pytest.mark.slow
+def test_a_stereo_pair_is_rendered_to_its_targets_as_one(tmp_path):
+    """Cycles, a stereo build under quality.control: error: both eyes of a view take the same
+    samples in the same renders and keep the same kind of image, and stop when both are at their
+    targets (or the budget is spent). Each eye ran its own loop before: one view's eyes ended at
+    36 and 76 samples, in 4 and 8 renders."""
+    from specsynth.model.records import ImageRecord
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.run.build import build
+    from specsynth.run.store import Store
+    from specsynth.spec.yamlio import load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles"))
+    out = tmp_path / "out"
+    summary = build(compile_spec(load_spec(f, ["cameras.stereo={baseline: 0.1}"])), out, jobs=1)
+    assert not summary.failures and summary.images == 4  # two views, two eyes each
+    store = Store(out)
+    for key in store.keys("render"):
+        left = ImageRecord.from_json(store.load("render", key))
+        right = ImageRecord.from_json(left.companions["right"])
+        assert right.t_w2c == pytest.approx([left.t_w2c[0] - 0.1, *left.t_w2c[1:]])
+        for k in ("samples", "renders", "image_samples", "denoised"):
+            assert left.stats[k] == right.stats[k], (k, left.stats, right.stats)
+        at_target = all(r.stats["error_estimate"] <= r.stats["error_target"] for r in (left, right))
+        assert at_target or left.stats["samples"] + 2 > 225
+        assert left.stats["error_target"] != right.stats["error_target"]  # each eye its own target

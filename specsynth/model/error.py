@@ -25,6 +25,11 @@ from .ir import RenderResult
 
 EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not dominate it
 
+# Bump when the code here changes what an error-targeted image is: part of the render key of
+# builds under quality.control: error (plan.compiler), so their cached renders are made again.
+# 2: the sample counts the backend takes, the record of the image kept, stereo eyes as one.
+REVISION = 2
+
 
 def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
     """Relative MSE of ``x`` against a reference image (linear radiance)."""
@@ -80,31 +85,68 @@ class ErrorTarget:
     """One image rendered until its estimated error reaches the paper preset's."""
 
     paper_samples: int  # samples per pixel of the paper preset whose error is the target
-    start_samples: int  # samples per render of the first pair (and of every later one)
+    start_samples: int  # samples per render of the first pair
     max_samples: int  # the image's total budget: never more than this many samples per pixel
     # An image stops when its estimate plus this many standard errors of it is at the target:
     # 1.645, one-sided 95 %: the error of about 19 in 20 images is at most the target.
     confidence: float = 1.645
+    # The samples per pixel a render takes when asked for n (at least n, rising with n): a sampler
+    # that rounds a count up (Mitsuba's stratified, to a square) would otherwise carry the last
+    # pair past the budget. None: every count as asked (BackendPlugin.sample_counts).
+    counts: Callable[[int], int] | None = None
 
     def __post_init__(self) -> None:
-        if min(self.paper_samples, self.start_samples) < 1 or self.max_samples < 2 * self.start_samples:
+        if min(self.paper_samples, self.start_samples) < 1 or self.max_samples < 2 * self.taken(self.start_samples):
             raise ValueError(f"an error target needs at least 1 sample per render and a budget of two: {self}")
+
+    def taken(self, n: int) -> int:
+        """The samples per pixel a render asked for ``n`` takes."""
+        return taken(self.counts, n)
+
+    def per_render(self, n: int, left: int) -> int:
+        return per_render(self.counts, n, left)
+
+
+def taken(counts: Callable[[int], int] | None, n: int) -> int:
+    """The samples per pixel a render asked for ``n`` takes (``ErrorTarget.counts``)."""
+    return n if counts is None else int(counts(n))
+
+
+def per_render(counts: Callable[[int], int] | None, n: int, left: int) -> int:
+    """Samples per render of a pair asked for about ``n`` with ``left`` samples per pixel of the
+    budget: the count the renderer takes for ``n``, else the largest it takes that fits (the
+    counts rise with the request: bisection); 0 when no pair fits."""
+    cap = left // 2
+    if cap < 1 or taken(counts, 1) > cap:
+        return 0
+    if taken(counts, n) <= cap:
+        return taken(counts, n)
+    lo, hi = 1, min(n, cap)  # taken(lo) fits
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if taken(counts, mid) <= cap else (lo, mid - 1)
+    return taken(counts, lo)
 
 
 @dataclass
 class TargetedResult:
-    result: RenderResult  # the image: every render's raw samples together, denoised
+    # The image kept: the mean of every render's raw samples, or the last pair denoised and
+    # averaged; its stats hold what the backend reported alike for every render it is made of.
+    result: RenderResult
     samples: int  # samples per pixel spent, over all renders
     renders: int
     error: float  # estimated relative MSE of the result
     target: float  # estimated relative MSE of the paper preset at this view
-    history: list[tuple[int, float]] = field(default_factory=list)  # (samples so far, upper bound) per step
+    # (the pair's samples, its denoised mean's upper bound) per pair rendered for the denoised way
+    history: list[tuple[int, float]] = field(default_factory=list)
     error_se: float = 0.0  # the estimate's standard error
+    image_samples: int = 0  # samples per pixel in the result: all spent (raw), the last pair's (denoised)
+    denoised: bool = False  # the result is the last pair denoised by the backend
 
     def stats(self) -> dict:
-        return {"samples": self.samples, "renders": self.renders, "error_estimate": self.error,
-                "error_se": self.error_se, "error_target": self.target,
-                "error_ratio": float(error_ratio(self.error, self.target))}
+        return {"samples": self.samples, "renders": self.renders, "image_samples": self.image_samples,
+                "denoised": self.denoised, "error_estimate": self.error, "error_se": self.error_se,
+                "error_target": self.target, "error_ratio": float(error_ratio(self.error, self.target))}
 
 
 def error_ratio(estimate, target) -> np.ndarray:
@@ -164,14 +206,18 @@ class _Candidate:
     # The estimate plus ``confidence`` standard errors of (estimate - target): the target's own
     # noise counted too, and nothing twice where both come from the same renders.
     upper: float
+    samples: int  # samples per pixel in the image
+    denoised: bool
 
 
-def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, confidence: float) -> _Candidate:
+def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, confidence: float, samples: int,
+               denoised: bool) -> _Candidate:
     error, se = mean_and_error(error_map)
-    return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1])
+    return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1], samples, denoised)
 
 
-def _candidates(raw: _Raw, pair: list[RenderResult], paper_samples: int, confidence: float) -> tuple[float, list[_Candidate]]:
+def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], paper_samples: int,
+                confidence: float) -> tuple[float, list[_Candidate]]:
     """(the paper preset's estimated error at this view, [the raw candidate, the denoised one
     when the backend denoises]). One normaliser for all of them, the denoised mean where there is
     one: the raw mean of a few samples is so noisy that ``1 / (norm² + ε)`` of it inflates the
@@ -183,11 +229,11 @@ def _candidates(raw: _Raw, pair: list[RenderResult], paper_samples: int, confide
     raw_map = ((a - b) ** 2 / 4 / norm2).mean(axis=-1)
     # the raw mean's error scaled from its samples to the paper's (see extrapolated_rel_mse)
     paper_map = raw_map * 2 * min(raw.counts) / paper_samples
-    out = [_candidate(raw_image, raw_map, paper_map, confidence)]
+    out = [_candidate(raw_image, raw_map, paper_map, confidence, sum(raw.counts), False)]
     if den_image is not None:
         (x, y) = pair
         den_map = denoised_rel_mse_map(x.linear, y.linear, x.noisy, y.noisy, norm=den_image).mean(axis=-1)
-        out.append(_candidate(den_image, den_map, paper_map, confidence))
+        out.append(_candidate(den_image, den_map, paper_map, confidence, sum(took), True))
     return float(paper_map.mean()), out
 
 
@@ -199,6 +245,9 @@ def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int,
     for g in (0, 1):
         res = render(n, first + g)
         took.append(int(res.stats.get("samples", res.stats.get("spp", n))))
+        if took[-1] > n:  # the budget is planned with the counts the renderer says it takes
+            raise RuntimeError(f"a render asked for {n} samples per pixel took {took[-1]}: the backend's plugin must "
+                               "say how it rounds sample counts (BackendPlugin.sample_counts)")
         raw.add(g, res.noisy if res.noisy is not None else res.linear, took[-1])
         for k, v in (res.stats.get("phases") or {}).items():  # the image's time is every render's
             phases[k] = phases.get(k, 0.0) + v
@@ -206,18 +255,53 @@ def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int,
     return pair, took
 
 
-def _next_step(history: list[tuple[int, float]], n: int, spent: int, paper: float,
+def _next_step(histories: list[list[tuple[int, float]]], n: int, spent: int, papers: list[float],
                target: ErrorTarget) -> tuple[int, bool]:
-    """(samples per render of the next pair, whether it is a new pair for the denoised way): the
-    cheaper way on. More raw samples reach the target at the paper's samples whatever the scene
-    (the raw mean's error and the target are one variance, at ``spent`` and at the paper's
-    samples); a new, larger denoised pair (whose samples are all new) is chosen only at half the
-    cost of the raw way, its fall being predicted. 0 samples: the budget is spent."""
+    """(samples per render of the next pairs, whether they are new pairs for the denoised way): the
+    cheaper way on for the image furthest from its target. More raw samples reach the target at
+    the paper's samples whatever the scene (the raw mean's error and the target are one variance,
+    at ``spent`` and at the paper's samples); new, larger denoised pairs (whose samples are all
+    new) are chosen only at half the cost of the raw way, their fall being predicted. 0 samples:
+    the budget is spent."""
     raw_need = max(1, target.paper_samples - spent)
-    den_need = 2 * math.ceil(samples_needed(history, paper) / 2) if history else None
+    den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
     den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
     n = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
-    return min(sample_step(n), (target.max_samples - spent) // 2), den_step
+    return target.per_render(sample_step(n), target.max_samples - spent), den_step
+
+
+class _Progress:
+    """One image of a group on its way to its target: its raw halves, what its renders reported,
+    and the last step's candidates."""
+
+    def __init__(self, render: Callable[[int, int], RenderResult]) -> None:
+        self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
+        self.spent, self.paper, self.candidates = 0, 0.0, []
+
+    def step(self, n: int, first: int, target: ErrorTarget, den_step: bool) -> None:
+        pair, took = _render_pair(self.render, n, first, self.raw, self.phases)
+        self.spent += sum(took)
+        self.reported += [res.stats for res in pair]
+        self.paper, self.candidates = _candidates(self.raw, pair, took, target.paper_samples, target.confidence)
+        if len(self.candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
+            self.history.append((sum(took), self.candidates[1].upper))
+
+    def over(self, kind: int) -> float:
+        """The candidate's upper bound over the target (an image without noise, target 0, is at it
+        with a bound of 0)."""
+        upper = self.candidates[kind].upper
+        return upper / self.paper if self.paper > 0 else (0.0 if upper <= 0 else math.inf)
+
+    def result(self, kind: int, renders: int, encode: Callable[[np.ndarray], np.ndarray]) -> TargetedResult:
+        best = self.candidates[kind]
+        linear = best.image.astype(np.float32)
+        # The kept image's record: what the backend reported alike for every render it is made of
+        # (a setting), not the last render's count, seed or time (Mitsuba's spp of the last pair
+        # stood beside the samples of all of them); the time is every render's.
+        made_of = self.reported[-2:] if best.denoised else self.reported
+        res = RenderResult(rgb=encode(linear), linear=linear, stats={**shared_stats(made_of), "phases": self.phases})
+        return TargetedResult(res, self.spent, renders, best.error, self.paper, self.history, best.se, best.samples,
+                              best.denoised)
 
 
 def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
@@ -233,20 +317,43 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
     estimate needs nothing of the denoiser but that it treats the two renders alike and
     independently. The image is the candidate with the lower bound; the next step is the
     cheaper way to the target (``_next_step``)."""
-    raw, history, phases = _Raw(), [], {}
-    n, renders, spent, den_step = target.start_samples, 0, 0, True
+    return render_group_to_target([render], target, encode)[0]
+
+
+def render_group_to_target(renders: list[Callable[[int, int], RenderResult]], target: ErrorTarget,
+                           encode: Callable[[np.ndarray], np.ndarray]) -> list[TargetedResult]:
+    """Several images of one view (a stereo rig's eyes) rendered to their targets as one
+    (``render_to_target`` for one image): each step renders a pair of every image with the same
+    samples and render indices, the next step is the one the image furthest from its target
+    needs, and all stop together when every image is at its target or the budget is spent. Each
+    keeps the same kind of candidate (raw mean or denoised pair: the one whose image furthest
+    from its target is nearest), so the images of a pair carry the same samples and treatment
+    and only their own content's error tells them apart."""
+    images = [_Progress(render) for render in renders]
+    n, count, den_step = target.per_render(target.start_samples, target.max_samples), 0, True
     while True:
-        pair, took = _render_pair(render, n, renders, raw, phases)
-        renders, spent = renders + 2, spent + sum(took)
-        paper, candidates = _candidates(raw, pair, target.paper_samples, target.confidence)
-        if len(candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
-            history.append((sum(took), candidates[1].upper))
-        best = min(candidates, key=lambda c: c.upper)  # the raw one on a tie
-        if best.upper <= paper or spent + 2 > target.max_samples:
+        for image in images:
+            image.step(n, count, target, den_step)
+        count += 2
+        kinds = range(min(len(image.candidates) for image in images))
+        kind = min(kinds, key=lambda k: max(image.over(k) for image in images))  # the raw mean on a tie
+        if all(image.candidates[kind].upper <= image.paper for image in images):
             break
-        n, den_step = _next_step(history, n, spent, paper, target)
+        spent = max(image.spent for image in images)
+        n, den_step = _next_step([image.history for image in images], n, spent, [image.paper for image in images], target)
         if n < 1:
             break
-    linear = best.image.astype(np.float32)
-    res = RenderResult(rgb=encode(linear), linear=linear, stats={**pair[-1].stats, "phases": phases})
-    return TargetedResult(res, spent, renders, best.error, paper, history, best.se)
+    return [image.result(kind, count, encode) for image in images]
+
+
+def shared_stats(reported: list[dict]) -> dict:
+    """The entries every one of ``reported`` has with one value (the phases aside)."""
+    first, rest = reported[0], reported[1:]
+    return {k: v for k, v in first.items() if k != "phases" and all(k in r and _same(r[k], v) for r in rest)}
+
+
+def _same(a, b) -> bool:
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):  # arrays and the like: not a setting
+        return False

@@ -235,8 +235,12 @@ def dataset_stats(out: Path, dest: Path) -> dict:
 def error_stats(out: Path, dest: Path) -> dict:
     """Images rendered to an error target (``quality.control: error``): samples per image and
     estimated error against target, plotted into ``quality.png``; {} for any other build."""
-    path = out / "parquet" / "timings.parquet"
-    timings = read_parquet(path) if path.is_file() else None
+    import pandas as pd
+
+    # Every part's: a stereo build's right eyes are images too (timings_right.parquet), as
+    # summary.json counts them.
+    parts = [read_parquet(p) for p in sorted((out / "parquet").glob("timings*.parquet"))]
+    timings = pd.concat(parts, ignore_index=True) if parts else None
     if timings is None or "error_target" not in timings or timings["error_target"].isna().all():
         return {}
     import matplotlib.pyplot as plt

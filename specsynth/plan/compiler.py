@@ -23,6 +23,7 @@ from ..assets.resolve import (
     file_digest,
     object_fingerprints,
 )
+from ..model import error as error_control
 from ..output_api import active_products
 from ..plugins import backend_plugin, dist_version, output_fingerprint
 from ..scenes import FIXED_ROOMS, PROCEDURAL, declares_stages, generated_name, scene_fingerprint, stage_table
@@ -101,9 +102,11 @@ def check_room_categories(ref, i: int, loaded: LoadedSpec) -> list:
 
 
 def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
-    """Located problems for a camera effect the spec's backend cannot render."""
+    """Located problems for a camera effect the spec's backend cannot render, or an error target it
+    cannot keep (no sampling noise; a budget no pair of its sample counts fits)."""
     problems = []
-    caps = backend_plugin(spec.backend.name).capabilities
+    plugin = backend_plugin(spec.backend.name)
+    caps = plugin.capabilities
     for name, what in (("depth_of_field", "depth of field"), ("motion_blur", "motion blur")):
         if getattr(spec.cameras, name) is not None and not getattr(caps, name):
             problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
@@ -112,6 +115,11 @@ def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
     if spec.quality.control == "error" and not caps.sampling_noise:
         problems.append(loaded.locate("quality.control", f"backend {spec.backend.name!r} has no sampling noise to "
                                       "control (its plugin does not declare sampling_noise); use control: samples"))
+    elif spec.quality.control == "error":
+        try:
+            plugin.error_target(spec.backend, spec.quality)
+        except ValueError as e:
+            problems.append(loaded.locate("quality.max_samples", str(e)))
     return problems
 
 
@@ -316,6 +324,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     extra = {"arrange": dict(asset_hashes), "view": {"annotator": f"pyrender {dist_version('pyrender')}"},
              "render": {"backend": backend, "products": product_fingerprints(inputs.render),
                         **_input_folders(spec, loaded)}}
+    if spec.quality.control == "error":  # only these renders are the error control's
+        extra["render"]["error_control"] = f"revision {error_control.REVISION}"
     # A stage's key: the digest of its whole inputs model, and what it reads besides the spec.
     stage_digests = {s: keys.stage_digest(s, {"inputs": keys.digest(getattr(inputs, s).model_dump(mode="json")),
                                               **extra[s]}) for s in STAGES}

@@ -22,10 +22,13 @@ class RightEye(ViewProduct):
     def active(self, inputs) -> bool:
         return inputs.stereo is not None
 
+    def other_images(self, inputs, t_w2c) -> dict[str, list[float]]:
+        return {self.name: (np.asarray(t_w2c, np.float64) - [inputs.stereo.baseline, 0.0, 0.0]).tolist()}
+
     def finish(self, record: ImageRecord, view: View) -> ImageRecord:
         baseline = view.inputs.stereo.baseline
-        t_right = (np.asarray(record.t_w2c, np.float64) - [baseline, 0.0, 0.0]).tolist()
-        right = replace(view.render_eye(t_right, self.name), eye="right", baseline=baseline)
+        right = replace(view.render_eye(self.other_images(view.inputs, record.t_w2c)[self.name], self.name),
+                        eye="right", baseline=baseline)
         return replace(record, eye="left", baseline=baseline, companions={**record.companions, self.name: right.to_json()})
 
 

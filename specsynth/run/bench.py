@@ -374,8 +374,10 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
         return Row(plugin.name, st.label, st.level, float(np.mean(times)), 0.0, float("inf"), 1.0, samples, phases,
                    load=statistics.median(loads))
     e = np.mean(np.asarray(errs), axis=0)
+    # per view, as the seconds and errors: under an error target each view takes its own samples
+    mean_samples = round(float(np.mean([v["samples"] for v in views])))
     return Row(plugin.name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]),
-               samples, phases, views, statistics.median(loads))
+               mean_samples, phases, views, statistics.median(loads))
 
 
 def reference(backend, options, cam, preset: QualityPreset, seed: int, clamp, arec, out: Path):
@@ -408,7 +410,7 @@ def _drawer(backend, preset: QualityPreset, target, clamp):
     as a build makes them (the same seeds)."""
     if target is None:
         return lambda cam, seed: backend.render(cam, preset, seed, clamp=clamp)
-    return lambda cam, seed: draw_to_target(backend, cam, preset, seed, target, clamp)
+    return lambda cam, seed: draw_to_target(backend, [cam], preset, seed, target, clamp)[0][0]
 
 
 def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:

@@ -7,13 +7,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
 from ..model import lens
 from ..model.colour import check_finite, linear_to_srgb8
-from ..model.error import ErrorTarget, render_to_target
+from ..model.error import ErrorTarget, render_group_to_target
 from ..model.ir import CameraIR, RenderResult, RenderScene
 from ..model.records import ArrangementRecord, ImageRecord, ViewRecord
 from ..output_api import ViewProduct, active_products
@@ -67,6 +67,17 @@ class RenderCall:
     backend_version: str
 
 
+@dataclass(frozen=True)
+class Drawn:
+    """One image of a view as the backend drew it, before annotation."""
+
+    t_w2c: tuple[float, ...]  # the camera's position (world to camera, metres)
+    camera: CameraIR
+    render_camera: CameraIR  # what the backend got (see RenderStep.render_camera)
+    result: RenderResult
+    seconds: float  # the backend's time for it
+
+
 class RenderStep:
     """Renders with its own inputs and the backend plugin's capabilities (read once, here). The
     backend, the annotator and the albedo raster are ``Held``: each loads an arrangement once for
@@ -104,7 +115,10 @@ class RenderStep:
                 continue
             view = ViewRecord.from_json(self.store.load("view", view_job.key))
             wd = self.store.begin()
-            rec, image = self.render_eye(wd, job, view, view.t_w2c, call, load_phase)
+            # Every image of the view drawn before any is written: under an error target the
+            # images of a stereo rig are rendered as one, to the same samples.
+            drawn = self.draw_view(job, view, call, self.images_of(view))
+            rec, image = self.render_eye(wd, job, view, drawn[""], call, load_phase, drawn)
             for product in self.setup.products:  # once per view: a product adding another image links it here
                 rec = product.finish(rec, image)
             record = rec.to_json()
@@ -121,17 +135,30 @@ class RenderStep:
         seconds = self.backend.load(arrange_key, framed.scene) + self.annotator.load(arrange_key, framed.scene)
         return RenderCall(arrange_key, framed, seconds, self.backend.get().version())
 
-    def render_eye(self, wd: Path, job: Job, view: ViewRecord, t_w2c, call: RenderCall,
-                   load_phase: float) -> tuple[ImageRecord, _Image]:
-        """One camera's image of the arrangement, its files written into ``wd``: render, annotate,
-        lens and sensor, products; -> its record and the image the products saw (every image of a
-        view shares the job's seed)."""
+    def images_of(self, view: ViewRecord) -> dict[str, list[float]]:
+        """Every image of a view by its folder ('' the view's own, then each one a product adds:
+        a stereo rig's right eye) -> the camera's position for it."""
+        found = {"": list(view.t_w2c)}
+        for product in self.setup.products:
+            found.update(product.other_images(self.setup.inputs, view.t_w2c))
+        return found
+
+    def draw_view(self, job: Job, view: ViewRecord, call: RenderCall, images: dict[str, Sequence[float]]) -> dict[str, Drawn]:
+        """The backend's images of one view, by folder: the cameras at ``images``' positions, all
+        with the job's seed, and under an error target rendered to it together."""
+        cams = {f: self.optics.camera(view.R_w2c, t, call.framed.origin) for f, t in images.items()}
+        cams_r = {f: self.render_camera(c, call.framed.scene, view.focus_inst, job) for f, c in cams.items()}
+        drawn = self.draw(list(cams_r.values()), job.seed)
+        return {f: Drawn(tuple(float(x) for x in images[f]), cams[f], cams_r[f], res, seconds)
+                for f, (res, seconds) in zip(images, drawn)}
+
+    def render_eye(self, wd: Path, job: Job, view: ViewRecord, drawn: Drawn, call: RenderCall,
+                   load_phase: float, others: dict[str, Drawn]) -> tuple[ImageRecord, _Image]:
+        """One camera's image of the arrangement, its files written into ``wd``: annotate, lens and
+        sensor, products; -> its record and the image the products saw (every image of a view
+        shares the job's seed). ``others``: the view's other images, drawn with it."""
         inp, warp = self.setup.inputs, self.optics.warp
-        cam = self.optics.camera(view.R_w2c, t_w2c, call.framed.origin)
-        cam_r = self.render_camera(cam, call.framed.scene, view.focus_inst, job)
-        t1 = time.perf_counter()
-        res = self.draw(cam_r, job.seed)
-        seconds = time.perf_counter() - t1
+        cam, cam_r, res, seconds, t_w2c = drawn.camera, drawn.render_camera, drawn.result, drawn.seconds, drawn.t_w2c
         if res.linear is not None:
             check_finite(res.linear, f"{inp.backend.name} render of {job.id}")
         t2 = time.perf_counter()
@@ -150,7 +177,10 @@ class RenderStep:
 
         def other_eye(t: Any, folder: str) -> ImageRecord:
             (wd / folder).mkdir()
-            return self.render_eye(wd / folder, job, view, t, call, 0.0)[0]
+            got = others.get(folder)
+            if got is None or got.t_w2c != tuple(float(x) for x in t):  # not announced: drawn on its own
+                got = self.draw_view(job, view, call, {folder: t})[folder]
+            return self.render_eye(wd / folder, job, view, got, call, 0.0, others)[0]
 
         image = _Image(wd, inp, cam, cam_r, res, ann, call.framed.assets, warp.rays if warp else None, job.id,
                        albedo, other_eye)
@@ -180,14 +210,20 @@ class RenderStep:
             cam_r = replace(cam_r, motion=camera_motion(inp.motion_blur, seeds.job_seed(inp.arrange.seed, f"{job.id}/motion")))
         return cam_r
 
-    def draw(self, cam: CameraIR, seed: int) -> RenderResult:
-        """One image from the backend: one render of the level's samples, or, under an error target,
-        pairs of renders with independent seeds until the image's estimated error reaches the target."""
+    def draw(self, cams: list[CameraIR], seed: int) -> list[tuple[RenderResult, float]]:
+        """The backend's images of one view's cameras, each with its seconds: one render each of the
+        level's samples, or, under an error target, pairs of renders of all of them with
+        independent seeds until every image's estimated error reaches its target."""
         setup, backend = self.setup, self.backend.get()
         clamp = setup.inputs.quality.clamp
-        if setup.target is None:
-            return backend.render(cam, setup.preset, seed, clamp=clamp)
-        return draw_to_target(backend, cam, setup.preset, seed, setup.target, clamp)
+        if setup.target is not None:
+            return draw_to_target(backend, cams, setup.preset, seed, setup.target, clamp)
+        out = []
+        for cam in cams:
+            t0 = time.perf_counter()
+            res = backend.render(cam, setup.preset, seed, clamp=clamp)
+            out.append((res, time.perf_counter() - t0))
+        return out
 
 
 def write_image(image: _Image, products: tuple[ViewProduct, ...]) -> dict[str, Any]:
@@ -285,16 +321,29 @@ def error_target(inp: RenderInputs, plugin: BackendPlugin) -> ErrorTarget | None
     return plugin.error_target(inp.backend, inp.quality)  # the spec's own samples start it
 
 
-def draw_to_target(backend, cam, preset, seed: int, target: ErrorTarget, clamp: float | None) -> RenderResult:
-    """Renders of ``preset``'s light paths, each with the samples ``target`` asks for, the first
-    with ``seed`` and the i-th with a seed of its own, until the image reaches the target (also
-    what `specsynth bench` times as ``+targeted``); the image's samples and error in its stats."""
-    def one(samples: int, i: int) -> RenderResult:
-        q = preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
-        return backend.render(cam, q, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp)
+def draw_to_target(backend, cams: Sequence[CameraIR], preset, seed: int, target: ErrorTarget,
+                   clamp: float | None) -> list[tuple[RenderResult, float]]:
+    """Renders of ``preset``'s light paths from each of ``cams`` (the images of one view), each with
+    the samples ``target`` asks for, the first with ``seed`` and the i-th with a seed of its own,
+    until every image reaches its target (``render_group_to_target``: the images of a stereo rig
+    take the same samples); also what `specsynth bench` times as ``+targeted``. -> each image,
+    its samples and error in its stats, and its seconds: its own renders' and a share of the
+    estimates'."""
+    spent = [0.0] * len(cams)
 
-    done = render_to_target(one, target, linear_to_srgb8)
-    return replace(done.result, stats={**done.result.stats, **done.stats()})
+    def drawer(k: int) -> Callable[[int, int], RenderResult]:
+        def one(samples: int, i: int) -> RenderResult:
+            q = preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
+            t0 = time.perf_counter()
+            res = backend.render(cams[k], q, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp)
+            spent[k] += time.perf_counter() - t0
+            return res
+        return one
+
+    t0 = time.perf_counter()
+    done = render_group_to_target([drawer(k) for k in range(len(cams))], target, linear_to_srgb8)
+    shared = (time.perf_counter() - t0 - sum(spent)) / len(cams)
+    return [(replace(d.result, stats={**d.result.stats, **d.stats()}), spent[k] + shared) for k, d in enumerate(done)]
 
 
 def render_phases(backend_phases: dict | None, render_seconds: float, **core: float) -> dict[str, float]:

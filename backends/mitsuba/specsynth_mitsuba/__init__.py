@@ -8,6 +8,15 @@ from specsynth.plugins import BackendPlugin, Capabilities
 
 from .options import MitsubaOptions
 
+
+def samples_taken(options: MitsubaOptions, n: int) -> int:
+    """The samples per pixel Mitsuba renders when asked for ``n``: its stratified sampler takes the
+    next square, ldsampler the next power of four (at least 4), independent ``n``."""
+    from .mapping import round_spp  # numbers only: Mitsuba is not imported
+
+    return round_spp(n, options.sampler)
+
+
 PLUGIN = BackendPlugin(
     name="mitsuba",
     default_rank=10,  # specsynth init's choice when several backends are installed
@@ -30,6 +39,7 @@ PLUGIN = BackendPlugin(
     # (docs/quality.md): paper medium 25.05 dB in 1.92 s, 1 spp + OIDN 29.59 dB in 0.28 s; paper high
     # 32.42 dB in 13.9 s, 9 spp + OIDN 34.12 dB in 1.33 s (4 spp + OIDN: 29.1 dB, below 1 spp's 30.7).
     calibrated={"medium": {"samples": 1, "denoise": True}, "high": {"samples": 9, "denoise": True}},
+    sample_counts=samples_taken,  # quality.control: error plans with the counts the sampler takes
 )
 
 __all__ = ["PLUGIN", "MitsubaOptions"]

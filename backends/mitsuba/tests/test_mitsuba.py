@@ -466,3 +466,75 @@ def test_mitsuba_keeps_drjits_kernel_cache_under_the_specsynth_cache(tmp_path):
     assert r.stdout.strip().endswith("ok"), r.stderr[-2000:]
     assert not (tmp_path / "home" / ".drjit").exists()
     assert any((tmp_path / "cache" / "drjit").iterdir())
+
+
+# ----------------------------------------------------------------------------- error targets
+
+
+def test_the_plugin_says_which_counts_the_sampler_takes():
+    """Every count the plugin announces is the one Mitsuba's samplers round to (the backend
+    raises when its sampler takes another), at least the count asked for and rising with it."""
+    from specsynth_mitsuba import PLUGIN, MitsubaOptions
+
+    for sampler in ("independent", "stratified", "ldsampler"):
+        opts = MitsubaOptions(sampler=sampler)
+        counts = [PLUGIN.sample_counts(opts, n) for n in range(1, 300)]
+        assert all(c >= n for n, c in zip(range(1, 300), counts)) and counts == sorted(counts)
+        assert set(counts) >= {mapping.round_spp(n, sampler) for n in range(1, 300)}
+
+
+def test_a_budget_no_pair_of_the_samplers_counts_fits_is_refused_at_validate(tmp_path):
+    """ldsampler renders at least 4 samples per pixel: a max_samples of 6 fits no pair of renders,
+    and validate says so, with the file and line, instead of an image past its budget."""
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import SpecError, load_spec
+
+    spec = tmp_path / "t.yaml"
+    spec.write_text("name: t\nseed: 1\nintrinsics: {width: 64, height: 48, fx: 60.0, fy: 60.0, cx: 31.5, cy: 23.5}\n"
+                    "objects: {builtin: [duck]}\nscenes: [{name: room}]\n"
+                    "quality:\n  level: high\n  control: error\n  max_samples: 6\n"
+                    "backend: {name: mitsuba, sampler: ldsampler}\n")
+    with pytest.raises(SpecError, match=r"t.yaml:9:\d+: quality.max_samples: .*fits no pair of renders.*at least 4"):
+        compile_spec(load_spec(spec))
+    spec.write_text(spec.read_text().replace("max_samples: 6", "max_samples: 8"))
+    compile_spec(load_spec(spec))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sampler", ["stratified", "ldsampler"])
+def test_an_error_target_keeps_to_max_samples_with_a_rounding_sampler(tmp_path, sampler):
+    """Under quality.control: error each image takes at most quality.max_samples, counted as the
+    sampler renders them: the stratified sampler rounds a count up to a square, and planning with
+    the counts asked for carried images to 242 samples per pixel against 225 (4, 4, 36, 36, then
+    72 asked, 81 rendered). Its record says the samples rendered."""
+    from dataclasses import replace
+
+    from specsynth.run.render import draw_to_target
+    from specsynth.spec.models import Quality
+    from specsynth.testing.materials import camera, quad
+    from specsynth_mitsuba import PLUGIN, MitsubaOptions
+    from specsynth_mitsuba.backend import MitsubaBackend
+
+    floor = replace(quad(tmp_path, "floor", 1.5),
+                    material=MaterialIR(base_color=(0.7, 0.5, 0.3), specular=0.3, roughness=0.6, use_vertex_colors=False))
+    card = replace(quad(tmp_path, "card", 0.2), pose=_pose((0.0, 0.0, 0.25)),
+                   material=MaterialIR(base_color=(0.2, 0.6, 0.3), specular=0.0, use_vertex_colors=False))
+    light = LightIR(kind="area", pose=_pose((0.2, 0.1, 0.9)), power=40.0, size=(0.6, 0.6))
+    scene = RenderScene(meshes=(floor, card), lights=(light,), world=WorldIR(color=(0.05, 0.05, 0.06)))
+    cam = camera((0.9, -0.9, 1.1), (0, 0, 0), 40.0, 48, 36)
+    quality = Quality(level="high", control="error")  # max_samples: the paper's 225
+    spec_opts = MitsubaOptions(denoise=True, sampler=sampler)
+    target = PLUGIN.error_target(spec_opts, quality)
+    b = MitsubaBackend(PLUGIN.options_for(spec_opts, quality), threads=2)
+    taken = []
+    render = b.render
+    b.render = lambda *a, **k: (r := render(*a, **k), taken.append(r.stats["spp"]))[0]
+    try:
+        b.load(scene)
+        for seed in range(3):
+            taken.clear()
+            res = draw_to_target(b, [cam], quality.resolved(), seed, target, None)[0][0]
+            assert res.stats["samples"] == sum(taken) <= 225, taken
+            assert len(taken) == res.stats["renders"] >= 4  # more than one pair: the budget mattered
+    finally:
+        b.close()
