@@ -32,7 +32,8 @@ from .options import PhotoOptions
 __all__ = ["PhotoBackend", "BackgroundError"]
 
 # Bump when a change alters pixels for the same inputs (it is part of every render job's key).
-ALGORITHM_VERSION = 3  # 2: background and augmentation maths without BLAS; 3: pano trigonometry in float64
+ALGORITHM_VERSION = 4  # 2: background and augmentation maths without BLAS; 3: pano trigonometry in float64;
+# 4: lights summed in the order they are drawn
 
 # Random light ranges. pyrender shades a white Lambertian surface facing a light of intensity E as
 # about 0.25 * E, so E in [1.2, 4] spans dim to bright without washing out.
@@ -104,7 +105,7 @@ class PhotoBackend:
 
     def load(self, scene: RenderScene) -> None:
         objects = scene.objects()
-        pr_scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=(0.0, 0.0, 0.0))
+        pr_scene = gl.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=(0.0, 0.0, 0.0))
         corners = []
         for inst in objects:
             key = (inst.mesh_key, inst.material)
@@ -200,7 +201,8 @@ class PhotoBackend:
         """RGBA of the loaded objects; camera and lights are added for this view only."""
         scene = self._scene
         nodes = [scene.add(camera, pose=cam_pose)]
-        nodes += [scene.add(light, pose=pose) for light, pose in lights]
+        # Named in drawing order: gl.Scene hands the lights to the shader in name order.
+        nodes += [scene.add(light, pose=pose, name=f"light{i:03d}") for i, (light, pose) in enumerate(lights)]
         scene.ambient_light = np.full(3, ambient)
         try:
             if self._renderer is None:

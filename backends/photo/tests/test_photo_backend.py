@@ -237,3 +237,27 @@ def test_pano_background_does_not_depend_on_the_heap(tmp_path):
     script.write_text(PANO_REPEAT)
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "0"
+
+
+@pytest.mark.parametrize("n_lights", [3, 6])
+def test_lights_reach_the_shader_in_drawing_order(scenes, monkeypatch, n_lights):
+    """Issue #35 item 12: pyrender iterates lights in the order of their nodes' addresses (a set),
+    and the shader's sum (or, past its 4 lights per kind, its choice of lights) followed that
+    order, so a pixel depended on the worker's heap. Iterated in either order of addresses, the
+    same view and seed must give the same bytes."""
+    import pyrender
+
+    by_address = pyrender.Scene.light_nodes
+    images = []
+    for reverse in (False, True):
+        def heap_order(self, reverse=reverse):
+            nodes = sorted(by_address.fget(self), key=id)
+            return nodes[::-1] if reverse else nodes
+
+        monkeypatch.setattr(pyrender.Scene, "light_nodes", property(heap_order))
+        b = PhotoBackend({"name": "photo", "lights": [n_lights, n_lights]})
+        b.load(scenes.full)
+        images.append([b.render(scenes.camera, LOW, seed).rgb for seed in range(8)])
+        b.close()
+    for seed, (a, b) in enumerate(zip(*images)):
+        assert np.array_equal(a, b), f"seed {seed}: {int((a != b).any(axis=2).sum())} pixels depend on the light order"
