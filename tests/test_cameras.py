@@ -152,6 +152,34 @@ def test_sample_camera(seed, az, el, d, inplane):
     np.testing.assert_array_equal(s.t_w2c, s2.t_w2c)
 
 
+@given(seed=st.integers(0, 2**32 - 1), el=st.tuples(st.floats(-90, 90), st.floats(-90, 90)).map(sorted))
+def test_area_sampling_keeps_the_range_and_the_draw_count(seed, el):
+    cams = Cameras(elevation=el, elevation_sampling="area")
+    rng = np.random.default_rng(seed)
+    s = sample_camera(rng, np.zeros(3), cams)
+    assert el[0] <= s.elevation <= el[1]
+    ref = np.random.default_rng(seed)
+    ref.random(4)
+    assert rng.random() == ref.random()
+    angle = sample_camera(np.random.default_rng(seed), np.zeros(3), Cameras(elevation=el))
+    assert (angle.azimuth, angle.distance, angle.inplane) == (s.azimuth, s.distance, s.inplane)
+
+
+@pytest.mark.parametrize("el", [(12.0, 74.0), (-30.0, 80.0), (0.0, 90.0)])
+def test_area_sampling_is_uniform_over_the_sphere(el):
+    """Positions uniform over the band's area: their height above the target's plane (the sine
+    of the elevation) is uniform between the band's edges."""
+    from scipy.stats import kstest, uniform
+
+    rng = np.random.default_rng(7)
+    cams = Cameras(elevation=el, elevation_sampling="area")
+    heights = [np.sin(np.radians(sample_camera(rng, np.zeros(3), cams).elevation)) for _ in range(4000)]
+    lo, hi = np.sin(np.radians(el[0])), np.sin(np.radians(el[1]))
+    assert kstest(heights, uniform(loc=lo, scale=hi - lo).cdf).pvalue > 1e-3
+    angles = [sample_camera(rng, np.zeros(3), Cameras(elevation=el)).elevation for _ in range(4000)]
+    assert kstest(np.sin(np.radians(angles)), uniform(loc=lo, scale=hi - lo).cdf).pvalue < 1e-6
+
+
 def test_sample_camera_range_limits():
     cams = Cameras(azimuth=(10, 10), elevation=(90, 90), distance=(0.4, 0.4), inplane=(0, 0))
     s = sample_camera(np.random.default_rng(0), np.zeros(3), cams)

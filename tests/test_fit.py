@@ -80,7 +80,7 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
     out, doc = _fitted(tmp_path, str(spec), probe=4)
     fitted = load_spec(out, []).spec.model_dump(mode="json")
     original = load_spec(spec, []).spec.model_dump(mode="json")
-    edited = {"cameras": {"distance", "elevation", "inplane"}, "visibility": {"threshold"},
+    edited = {"cameras": {"distance", "elevation", "elevation_sampling", "inplane"}, "visibility": {"threshold"},
               "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation"}, "outputs": {"image_format"}}
     for section, value in original.items():
         keep = {k: v for k, v in value.items() if k not in edited.get(section, ())} if isinstance(value, dict) else value
@@ -112,9 +112,9 @@ def _unfitted(tmp_path: Path) -> Path:
     lines = []
     for line in (ROOT / "specs" / "lmo_bl.yaml").read_text().splitlines():
         key = line.strip().split(":", 1)[0]
-        if line.startswith("  ") and key in ("elevation", "distance", "inplane"):
-            line = {"elevation": "  elevation: [5, 89]", "distance": "  distance: [0.4, 1.8]",
-                    "inplane": "  inplane: [0, 0]"}[key]
+        if line.startswith("  ") and key in ("elevation", "elevation_sampling", "distance", "inplane"):
+            line = {"elevation": "  elevation: [5, 89]", "elevation_sampling": "  elevation_sampling: angle",
+                    "distance": "  distance: [0.4, 1.8]", "inplane": "  inplane: [0, 0]"}[key]
         lines.append(line)
     (tmp_path / "unfitted").mkdir()
     spec = tmp_path / "unfitted" / "lmo_bl.yaml"
@@ -136,6 +136,18 @@ def test_a_fitted_spec_built_small_moves_its_geometry_toward_the_real_split(tmp_
         distances[name] = json.loads(capsys.readouterr().out)["statistics"]
     for stat in ("elevation", "distance"):
         assert distances["fitted"][stat]["distance"] < distances["original"][stat]["distance"], stat
+
+
+@pytest.mark.parametrize("law", ["angle", "area"])
+def test_fit_picks_the_elevation_sampling_the_real_elevations_were_drawn_with(law):
+    from specsynth.views.cameras import elevation_on_area
+
+    u = np.random.default_rng(5).random(300)
+    real = lo, hi = 10.0, 80.0
+    values = lo + u * (hi - lo) if law == "angle" else np.array([elevation_on_area(x, *real) for x in u])
+    w = fit.elevation_law_distances(values, lo, hi)
+    assert min(w, key=w.get) == law
+    assert w[law] < 2.0 < max(w.values())
 
 
 def test_fit_refuses_a_folder_as_its_output(tmp_path, capsys):

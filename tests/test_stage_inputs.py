@@ -127,6 +127,7 @@ EDITS = {
     "cameras.per_arrangement": [1, 3],
     "cameras.azimuth": ["[0, 90]", "[180, 270]"],
     "cameras.elevation": ["[30, 40]", "[60, 80]"],
+    "cameras.elevation_sampling": ["area"],
     "cameras.distance": ["[0.5, 0.6]", "[0.3, 0.4]"],
     "cameras.inplane": ["[-20, 20]"],
     "cameras.max_tries": [1, 3],

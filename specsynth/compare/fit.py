@@ -22,6 +22,7 @@ import numpy as np
 
 from .collect import Collected
 from .distance import spread, summary
+from ..views.cameras import elevation_on_area
 from .imagestats import (MIN_OBJECT_PIXELS, colourfulness, half_rgb8, lab_of_linear, linear_of_lab, luma, noise_level,
                          percentiles, saturation, sharpness, srgb8_to_linear)
 
@@ -60,6 +61,16 @@ def aimed_at(real: Collected) -> dict[str, np.ndarray]:
     return {"distance": inst["distance"][first], "elevation": inst["elevation"][first]}
 
 
+def elevation_law_distances(values, lo: float, hi: float) -> dict[str, float]:
+    """The 1-Wasserstein distance (degrees) between real elevations and each way of drawing them
+    in [lo, hi]: through the quantile functions, at the real sample's own quantile levels."""
+    x = np.sort(np.asarray(values, np.float64)[np.isfinite(values)])
+    p = (np.arange(len(x)) + 0.5) / max(len(x), 1)
+    laws = {"angle": lo + p * (hi - lo),
+            "area": np.array([elevation_on_area(float(q), lo, hi) for q in p])}
+    return {name: float(np.mean(np.abs(x - q))) if len(x) else 0.0 for name, q in laws.items()}
+
+
 def geometry_edits(real: Collected, source: str) -> list[Edit]:
     """Camera ranges from the objects the real cameras aim at; the visibility threshold from every
     real instance."""
@@ -69,10 +80,16 @@ def geometry_edits(real: Collected, source: str) -> list[Edit]:
         Edit("cameras.distance", _range(aim["distance"], 5, 95, 0.01, 0.02, 1e4),
              f"fit: real distance to the central object 5-95 % {d['p5']:.2f}-{d['p95']:.2f} m (median "
              f"{d['median']:.2f}) in {source}"),
-        Edit("cameras.elevation", _range(aim["elevation"], 5, 95, 1.0, -90, 90),
+        Edit("cameras.elevation", elevation := _range(aim["elevation"], 5, 95, 1.0, -90, 90),
              f"fit: real elevation over the central object 5-95 % {e['p5']:.0f}-{e['p95']:.0f} deg (median "
              f"{e['median']:.0f}) in {source}"),
     ]
+    if e["n"]:
+        w = elevation_law_distances(aim["elevation"], *elevation)
+        law = min(w, key=w.get)
+        out.append(Edit("cameras.elevation_sampling", law,
+                        f"fit: real elevations are {w['area']:.1f} deg from a draw over the sphere's area, "
+                        f"{w['angle']:.1f} deg from a draw uniform in angle, in {source}"))
     if r["n"]:
         out.append(Edit("cameras.inplane", _range(ims["inplane"], 5, 95, 1.0, -360, 360),
                         f"fit: real in-plane rotation 5-95 % {r['p5']:.0f}-{r['p95']:.0f} deg in {source}"))

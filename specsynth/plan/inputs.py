@@ -131,6 +131,7 @@ class CameraDraws(Cut):
     per_arrangement: Annotated[int, From("per_arrangement")]
     azimuth: Annotated[tuple[float, float], From("azimuth")]
     elevation: Annotated[tuple[float, float], From("elevation")]
+    elevation_sampling: Annotated[str, From("elevation_sampling")]
     distance: Annotated[tuple[float, float], From("distance")]
     inplane: Annotated[tuple[float, float], From("inplane")]
     max_tries: Annotated[int, From("max_tries")]

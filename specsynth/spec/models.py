@@ -452,6 +452,11 @@ class Cameras(Strict):
     per_arrangement: int = Field(5, ge=1, le=100_000, description="Cameras per arrangement.")
     azimuth: FloatRange(-720, 720) = Field((0.0, 360.0), description="Azimuth around the focused object, degrees.")
     elevation: FloatRange(-90, 90) = Field((10.0, 80.0), description="Elevation above the stage plane, degrees.")
+    elevation_sampling: Literal["angle", "area"] = Field(
+        "angle", description="How elevations are drawn in their range: 'angle', uniform in degrees; 'area', camera "
+        "positions uniform over the area of the viewing sphere's band, so low elevations come more often (the "
+        "band is wider there), as a view sphere is sampled in the BOP toolkit. `specsynth fit` picks the one "
+        "nearer a real test set's elevations.")
     distance: FloatRange(0.02, 1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres (at least 2 cm: nearer is inside the object).")
     inplane: FloatRange(-360, 360) = Field((0.0, 0.0), description="In-plane rotation about the optical axis, degrees.")
     max_tries: int = Field(10, ge=1, le=1000, description="Camera resamples before a view is dropped.")

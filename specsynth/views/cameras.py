@@ -7,6 +7,7 @@ Conventions (see ``specsynth.model.conventions``): world metres with Z up; camer
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -110,9 +111,18 @@ def camera_pose(target, azimuth: float, elevation: float, distance: float, inpla
     return rotate_inplane(R, t, inplane)
 
 
+def elevation_on_area(u: float, lo: float, hi: float) -> float:
+    """The elevation (degrees) at quantile ``u`` of positions uniform over the area of the viewing
+    sphere's band between ``lo`` and ``hi``: the band's area up to elevation e grows as sin(e)."""
+    s_lo, s_hi = math.sin(math.radians(lo)), math.sin(math.radians(hi))
+    el = math.degrees(math.asin(min(1.0, max(-1.0, s_lo + u * (s_hi - s_lo)))))
+    return min(max(el, lo), hi)
+
+
 def sample_camera(rng: np.random.Generator, target, cams: "Cameras") -> CameraSample:
-    """One camera around ``target`` with parameters uniform in the spec's ranges (``cams``: the
-    spec's cameras or the view step's cut of them, ``specsynth.plan.inputs.CameraDraws``).
+    """One camera around ``target`` with parameters uniform in the spec's ranges, the elevation in
+    angle or over the sphere's area (``cams``: the spec's cameras or the view step's cut of them,
+    ``specsynth.plan.inputs.CameraDraws``).
 
     Always consumes exactly one ``rng.random(4)`` draw (azimuth, elevation, distance, in-plane,
     in that order), degenerate ranges included, so a job's seed fixes the whole camera sequence.
@@ -120,6 +130,8 @@ def sample_camera(rng: np.random.Generator, target, cams: "Cameras") -> CameraSa
     u = rng.random(4)
     ranges = (cams.azimuth, cams.elevation, cams.distance, cams.inplane)
     az, el, dist, inplane = (float(lo + ui * (hi - lo)) for ui, (lo, hi) in zip(u, ranges))
+    if cams.elevation_sampling == "area":
+        el = elevation_on_area(float(u[1]), *cams.elevation)
     R, t = camera_pose(target, az, el, dist, inplane)
     return CameraSample(R_w2c=R, t_w2c=t, azimuth=az, elevation=el, distance=dist, inplane=inplane)
 
