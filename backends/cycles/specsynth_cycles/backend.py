@@ -346,6 +346,9 @@ class CyclesBackend:
             cy.adaptive_threshold = ps.adaptive_threshold
             cy.adaptive_min_samples = 0
         cy.sample_clamp_indirect = ps.clamp_indirect
+        cy.use_guiding = ps.guiding
+        # Open PGL's training is threaded; its deterministic mode keeps the pixels reproducible.
+        cy.use_deterministic_guiding = True
         cy.pixel_filter_type = "BOX"
         cy.filter_width = 1.0
         sc = self._bpy.context.scene

@@ -6,6 +6,8 @@ BENCH = BenchSettings(
     variants=(("denoise", {"denoise": True}),
               ("denoise-accurate", {"denoise": True, "denoise_prefilter": "accurate"}),
               ("denoise-fast", {"denoise": True, "denoise_prefilter": "fast", "denoise_quality": "balanced"}),
-              ("adaptive", {"adaptive_threshold": 0.01})),
+              ("adaptive", {"adaptive_threshold": 0.01}),
+              # against the ladder's denoise@16 (bench --ladder): the same samples, guided
+              ("guided@16", {"denoise": True, "samples": 16, "guiding": True})),
     toggles=(("light-path budget", "light_path_budget"),),
 )

@@ -18,6 +18,10 @@ class CyclesOptions(BackendOptions):
         "CPU's in the last bits, so 'cpu' (the default) keeps builds identical across machines.",
     )
     adaptive_threshold: float | None = Field(None, gt=0, description="Adaptive sampling noise threshold.")
+    guiding: bool = Field(
+        False, description="Path guiding (Open PGL, CPU only): learns where light comes from while rendering and "
+        "sends paths there; deterministic, so a build stays reproducible. Measured in docs/backends/cycles.md.",
+    )
     denoise_prefilter: Literal["none", "fast", "accurate"] = Field(
         "none", description="OIDN's treatment of the albedo/normal guides. Measured (docs/backends/cycles.md): "
         "'accurate' (Blender's default) gives the same error as 'none' (35.09 vs 35.08 dB at medium) for 1.45 s "

@@ -99,6 +99,7 @@ class PathSettings:
     denoise_quality: str
     adaptive_threshold: float | None
     clamp_indirect: float
+    guiding: bool = False
 
     def stats(self) -> dict:
         d = asdict(self)
@@ -126,6 +127,7 @@ def path_settings(
         adaptive_threshold=options.adaptive_threshold,
         # 0 disables clamping; Blender's default of 10 biases energy, so only clamp when asked to.
         clamp_indirect=float(clamp) if clamp else 0.0,
+        guiding=options.guiding,
     )
 
 

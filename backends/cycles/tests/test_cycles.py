@@ -121,7 +121,9 @@ def test_path_settings_skip_unneeded_bounces_and_honour_options():
         hi, CyclesOptions(name="cycles", samples=7, denoise=True), has_glossy=True, has_transmission=True, clamp=3.0
     )
     assert (ps.samples, ps.glossy_bounces, ps.transmission_bounces, ps.clamp_indirect) == (7, 3, 4, 3.0)
-    assert not ps.glossy_skipped and ps.denoise
+    assert not ps.glossy_skipped and ps.denoise and not ps.guiding
+    assert path_settings(hi, CyclesOptions(name="cycles", guiding=True), has_glossy=False, has_transmission=False,
+                         clamp=None).guiding
     assert ps.stats()["bounces"] == {"max": 4, "diffuse": 3, "glossy": 3, "transmission": 4}
 
 
@@ -233,6 +235,28 @@ def test_same_job_is_byte_identical(backend, meshes):
     backend.load(_lit_scene(meshes))
     assert backend.render(cam, q, seed=12345).linear.tobytes() == a.linear.tobytes()
     assert a.rgb.dtype == np.uint8 and a.linear.dtype == np.float32 and a.rgb.shape == (48, 64, 3)
+
+
+@pytest.mark.slow
+def test_path_guiding_reaches_the_integrator_and_stays_reproducible(backend, meshes):
+    """backend.guiding: Open PGL's training is threaded; in its deterministic mode a guided job
+    gives the same bytes twice, also after a new load (a fresh sync and a fresh guiding field)."""
+    q = PAPER_PRESETS["high"]
+    cam = camera()
+    saved = backend.options
+    try:
+        backend.options = saved.model_copy(update={"samples": 16})
+        backend.load(_lit_scene(meshes))
+        plain = backend.render(cam, q, seed=3)
+        backend.options = saved.model_copy(update={"samples": 16, "guiding": True})
+        a = backend.render(cam, q, seed=3)
+        backend.load(_lit_scene(meshes))
+        b = backend.render(cam, q, seed=3)
+    finally:
+        backend.options = saved
+    assert a.stats["guiding"] and not plain.stats["guiding"]
+    assert a.linear.tobytes() == b.linear.tobytes()
+    assert np.abs(a.linear - plain.linear).mean() > 1e-4  # guided paths are other paths
 
 
 @pytest.mark.slow
