@@ -28,8 +28,8 @@ from .types import Stage
 # Part of the fingerprint of every scene whose stages are found: bump when the same geometry can
 # give other stages. 2: vertical triangles as spans. 3: a scene that wants only its focus stages is searched
 # inside its focus areas, and a stage is the largest rectangle at least min_side on both sides (not the
-# largest one, which could be a strip too thin to keep).
-VERSION = 3
+# largest one, which could be a strip too thin to keep). 4: a cell with support on three sides is support.
+VERSION = 4
 MAX_SAMPLES = 8_000_000  # the sampling spacing grows past this, so huge scenes stay bounded
 MAX_GRID_CELLS = 400 * 400  # likewise for the XY grid
 
@@ -134,6 +134,18 @@ def height_levels(z: np.ndarray, tol: float, min_count: int) -> list[float]:
             levels.append(float(zs[start]))
         start = end
     return levels
+
+
+def fill_pinholes(support: np.ndarray) -> np.ndarray:
+    """``support`` with every cell that has support on at least three of its four sides.
+
+    Samples fall about four to a cell, not evenly: now and then a cell inside a surface gets none
+    (where the fan of a clipped triangle is thin), and the margin's erosion made that one cell a
+    hole of five by five in the stage. A cell outside a surface's edge, straight or stepped, has
+    support on two sides at most, so edges stay where they are."""
+    p = np.pad(support, 1)
+    sides = p[:-2, 1:-1].astype(np.int8) + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]
+    return support | (sides >= 3)
 
 
 def _erode(mask: np.ndarray, r: int) -> np.ndarray:
@@ -297,6 +309,7 @@ def find_stages(triangles: np.ndarray, params: AutoStageParams = AutoStageParams
         box = (r1 - r0, c1 - c0)
         support = np.zeros(box, bool)
         support[r_on - r0, c_on - c0] = True
+        support = fill_pinholes(support)
         top = np.full(box, -np.inf)  # highest support sample per cell: where objects land
         np.maximum.at(top, (r_on - r0, c_on - c0), z_on)
         lo_a, hi_a = np.searchsorted(z_all, [level + params.height_tol, level + params.clearance], side="right")
