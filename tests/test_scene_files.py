@@ -565,9 +565,7 @@ def test_pinholes_are_filled_and_edges_stay(rows, cols, angle, seed):
     a = np.radians(angle)
     u, v = r * np.cos(a) + c * np.sin(a), -r * np.sin(a) + c * np.cos(a)
     shape = (np.abs(u) <= rows / 2) & (np.abs(v) <= cols / 2)
-    assert np.array_equal(fill_pinholes(shape), shape | (fill_pinholes(shape) & shape))
-    grown = fill_pinholes(shape) & ~shape
-    assert not grown.any() or np.all(np.abs(u[grown]) <= rows / 2 + 1) and np.all(np.abs(v[grown]) <= cols / 2 + 1)
+    assert np.array_equal(fill_pinholes(shape), shape)  # no edge moves, straight or stepped
     holes = shape.copy()
     inner = np.argwhere(shape & np.roll(shape, 1, 0) & np.roll(shape, -1, 0) & np.roll(shape, 1, 1) & np.roll(shape, -1, 1))
     rng = np.random.default_rng(seed)

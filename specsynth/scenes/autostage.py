@@ -140,8 +140,8 @@ def fill_pinholes(support: np.ndarray) -> np.ndarray:
     """``support`` with every cell that has support on at least three of its four sides.
 
     Samples fall about four to a cell, not evenly: now and then a cell inside a surface gets none
-    (where the fan of a clipped triangle is thin), and the margin's erosion made that one cell a
-    hole of five by five in the stage. A cell outside a surface's edge, straight or stepped, has
+    (seen inside the marker board of a dressed desk), and the margin's erosion made that one cell
+    a hole of five by five in the stage. A cell outside a surface's edge, straight or stepped, has
     support on two sides at most, so edges stay where they are."""
     p = np.pad(support, 1)
     sides = p[:-2, 1:-1].astype(np.int8) + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]
