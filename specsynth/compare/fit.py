@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from ..views.cameras import elevation_on_area
 from .collect import Collected
 from .distance import spread, summary
-from ..views.cameras import elevation_on_area
 from .imagestats import (MIN_OBJECT_PIXELS, colourfulness, half_rgb8, lab_of_linear, linear_of_lab, luma, noise_level,
                          percentiles, saturation, sharpness, srgb8_to_linear)
 
