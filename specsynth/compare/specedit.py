@@ -22,6 +22,7 @@ class Document:
     """A YAML document and the indentation it was written with (kept when it is dumped)."""
 
     def __init__(self, text: str):
+        self.text = text
         self.root = _yaml().load(text)
         self.indent, self.offset = _indentation(text)
 
@@ -30,7 +31,35 @@ class Document:
         y.indent(mapping=self.indent, sequence=self.offset + 2, offset=self.offset)
         buf = io.StringIO()
         y.dump(self.root, buf)
-        return buf.getvalue()
+        return keep_wrapping(self.text, buf.getvalue())
+
+
+def _squeezed(lines: list[str]) -> str:
+    """Lines joined with every run of whitespace as one space, none inside brackets' edges."""
+    import re
+
+    text = re.sub(r"\s+", " ", " ".join(lines)).strip()
+    return re.sub(r"([\[{]) | ([\]},])", lambda m: m.group(1) or m.group(2), text)
+
+
+def keep_wrapping(original: str, dumped: str) -> str:
+    """``dumped`` with each run of lines that differs from ``original`` only in where lines break
+    (ruamel writes a flow list the user wrapped over several lines on one) put back as the user
+    wrote it. Checked: the result must load to the same data as ``dumped``, else ``dumped``."""
+    import difflib
+
+    old, new = original.splitlines(keepends=True), dumped.splitlines(keepends=True)
+    out: list[str] = []
+    for tag, i0, i1, j0, j1 in difflib.SequenceMatcher(None, old, new, autojunk=False).get_opcodes():
+        same = tag == "replace" and _squeezed(old[i0:i1]) == _squeezed(new[j0:j1])
+        out += old[i0:i1] if tag == "equal" or same else new[j0:j1]
+    kept = "".join(out)
+    if kept != dumped and not kept.endswith("\n") and dumped.endswith("\n"):
+        kept += "\n"
+    try:
+        return kept if _yaml().load(kept) == _yaml().load(dumped) else dumped
+    except Exception:  # noqa: BLE001  (any YAML error: the safe choice is ruamel's own text)
+        return dumped
 
 
 def _yaml():
