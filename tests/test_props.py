@@ -157,6 +157,45 @@ def test_a_marker_board_lies_under_the_stage_area_inside_the_top(seed):
                                        board=0.0).meshes if m.name.split("_")[1] == "board"]
 
 
+def _shelved(depth: float, seeds=range(40)):
+    top = props.Top(cx=0.2, cy=0.1, width=1.4, depth=depth, yaw=180.0, z=0.74)
+    for seed in seeds:
+        d = props.dress(top, np.random.default_rng(seed), cache_dir(), "desk00", density=2.0)
+        if any(m.name.split("_")[1] == "shelf" for m in d.meshes):
+            yield top, d
+
+
+@pytest.mark.parametrize("depth", [0.6, 0.8])
+def test_a_desk_shelf_stands_on_the_back_of_the_top_with_its_binders_inside(depth):
+    """An open shelf unit against the top's back edge, clear of the stage area; every binder and
+    book on it lies inside the unit, on a level, and none overlaps another."""
+    shelved = list(_shelved(depth))
+    assert len(shelved) >= 8  # about half of the dense desks carry one
+    for top, d in shelved:
+        parts = [m for m in d.meshes if m.name.split("_")[1] == "shelf"]
+        sides = sorted((_local(top, *m.transform.translation[:2])[0], m) for m in parts if "_shelf_side_" in m.name)
+        assert len(sides) == 2
+        (ua, left), (ub, right) = sides
+        v = _local(top, *left.transform.translation[:2])[1]
+        sd, h = left.source.box[1], left.source.box[2]
+        assert v + sd / 2 < top.depth / 2 and v - sd / 2 > d.stage[3]  # at the back, behind the stage area
+        assert abs(left.transform.translation[2] - (top.z + h / 2)) < 1e-9
+        filled = [m for m in d.meshes if re.search(r"_(binder|book)_\d+$", m.name)
+                  and ua < _local(top, *m.transform.translation[:2])[0] < ub
+                  and abs(_local(top, *m.transform.translation[:2])[1] - v) < sd / 2]
+        assert filled
+        spans = []
+        for m in filled:
+            u, mv = _local(top, *m.transform.translation[:2])
+            t, bd, bh = m.source.box
+            assert ua + 0.009 <= u - t / 2 and u + t / 2 <= ub - 0.009 and abs(mv - v) + bd / 2 <= sd / 2 + 0.006
+            z0, z1 = m.transform.translation[2] - bh / 2, m.transform.translation[2] + bh / 2
+            assert top.z - 1e-9 <= z0 and z1 <= top.z + h - props.PANEL + 1e-9
+            spans.append((round(z0, 6), u - t / 2, u + t / 2))
+        for k, (z, a0, a1) in enumerate(spans):  # side by side on each level, never inside each other
+            assert not any(z == z2 and a0 < b1 - 1e-9 and b0 < a1 - 1e-9 for z2, b0, b1 in spans[k + 1:])
+
+
 def test_the_office_desk_room_drops_objects_on_its_focus_areas_alone():
     only = load_scene(_ref("office_desk", ["focus"]), Path("."))
     assert only.stages and all(s.focus and 0.6 < s.height < 1.0 for s in only.stages.values())

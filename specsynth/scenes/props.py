@@ -30,6 +30,7 @@ from .models import LightDef, SceneMaterial, SceneMesh, Transform
 
 PAPER = 0.0002  # metres: one sheet
 BOARD = 0.0008  # metres: a marker board (printed card)
+BOARD_MIDDLE = 5 / 7  # the share of a board's depth (and width) inside its ring of markers (printed._board)
 FLAT_STEP = 0.0003  # each flat item lies this much above the one before: no coplanar faces
 ITEM_GAP = 0.02  # free space kept between placed items
 # Catalogue items by what they are, from their names.
@@ -45,6 +46,11 @@ ITEM_GROUPS = {
 }
 LAMPS = ("Scopia#desk_lamp1", "Scopia#desk_lamp2", "Blend Swap CC-0#desklamp")
 CABLE_COLOURS = ((0.02, 0.02, 0.02), (0.03, 0.03, 0.035), (0.85, 0.85, 0.83), (0.25, 0.25, 0.27))
+# Office binders come in a few strong colours and black and white (linear RGB).
+BINDER_COLOURS = ((0.45, 0.03, 0.03), (0.03, 0.09, 0.4), (0.7, 0.5, 0.02), (0.04, 0.3, 0.08), (0.6, 0.18, 0.02),
+                  (0.02, 0.02, 0.02), (0.75, 0.75, 0.73), (0.25, 0.06, 0.3))
+SHELF_FINISHES = ((0.8, 0.8, 0.78), (0.55, 0.4, 0.25), (0.3, 0.2, 0.12), (0.12, 0.12, 0.12), (0.6, 0.6, 0.62))
+PANEL = 0.018  # metres: a shelf board's thickness
 
 
 @dataclass(frozen=True)
@@ -214,6 +220,55 @@ class _Dresser:
             translation=(x, y, self.top.z + item.size[2] * 0.9), look_at=(tx, ty, self.top.z),
             spot_angle=float(self.rng.uniform(70, 110)), spot_blend=0.3))
 
+    def desk_shelf(self, u: float, v: float, w: float, d: float, h: float) -> None:
+        """An open shelf unit standing at the back of the top (centre ``u``, ``v``; ``w`` x ``d`` x
+        ``h``), one or two levels filled with binders and upright books: what real desks carry above
+        the height of their clutter."""
+        z = self.top.z
+        finish = SceneMaterial(base_color=SHELF_FINISHES[int(self.rng.integers(len(SHELF_FINISHES)))],
+                               roughness=float(self.rng.uniform(0.4, 0.8)), specular=0.4)
+        for side in (-1, 1):
+            self.put("shelf_side", {"box": (PANEL, d, h)}, u + side * (w - PANEL) / 2, v, z + h / 2, 0.0, finish)
+        self.put("shelf_top", {"box": (w, d, PANEL)}, u, v, z + h - PANEL / 2, 0.0, finish)
+        self.put("shelf_back", {"box": (w - 2 * PANEL, 0.008, h - PANEL)}, u, v + d / 2 - 0.004, z + (h - PANEL) / 2,
+                 0.0, finish)
+        levels = [(z, z + h - PANEL)]
+        if h > 0.42:  # a middle board makes two levels
+            mid = z + float(self.rng.uniform(0.45, 0.55)) * h
+            self.put("shelf_board", {"box": (w - 2 * PANEL, d - 0.008, PANEL)}, u, v - 0.004, mid, 0.0, finish)
+            levels = [(z, mid - PANEL / 2), (mid + PANEL / 2, z + h - PANEL)]
+        for lo, hi in levels:
+            self.shelf_row(u - w / 2 + PANEL, u + w / 2 - PANEL, v, d - 0.03, lo, hi)
+
+    def shelf_row(self, u0: float, u1: float, v: float, d: float, lo: float, hi: float) -> None:
+        """Binders and books standing side by side between ``u0`` and ``u1`` on a level from height
+        ``lo`` to ``hi``, with a gap here and there."""
+        room = hi - lo - 0.01
+        if room < 0.12:
+            return
+        u = u0 + 0.005
+        while True:
+            binder = self.rng.random() < 0.55
+            t = float(self.rng.uniform(0.04, 0.08) if binder else self.rng.uniform(0.015, 0.045))
+            if u + t > u1 - 0.005:
+                break
+            bh = min(room, float(self.rng.uniform(0.28, 0.32) if binder else self.rng.uniform(0.17, 0.3)))
+            bd = min(d, float(self.rng.uniform(0.2, 0.26) if binder else self.rng.uniform(0.13, 0.22)))
+            bv = v - d / 2 + bd / 2 + 0.005 * float(self.rng.uniform(-1, 1))  # spines flush with the front
+            if binder:
+                colour = BINDER_COLOURS[int(self.rng.integers(len(BINDER_COLOURS)))]
+                self.put("binder", {"box": (t, bd, bh)}, u + t / 2, bv, lo + bh / 2, 0.0,
+                         SceneMaterial(base_color=colour, roughness=float(self.rng.uniform(0.3, 0.6)), specular=0.5))
+                label = SceneMaterial(base_color=(0.8, 0.8, 0.78), roughness=0.7)
+                self.put("binder_label", {"box": (t * 0.6, 0.001, bh * 0.3)}, u + t / 2, bv - bd / 2 - 0.0005,
+                         lo + bh * 0.62, 0.0, label, collide=False)
+            else:
+                cover = self.printed("cover")
+                self.put("book", {"box": (t, bd, bh)}, u + t / 2, bv, lo + bh / 2, 0.0,
+                         SceneMaterial(texture=str(cover.path), uv_scale=(1.0 / bd, 1.0 / bh),
+                                       roughness=float(self.rng.uniform(0.35, 0.8))))
+            u += t + (float(self.rng.uniform(0.05, 0.2)) if self.rng.random() < 0.08 else 0.001)
+
     def cable(self, u: float, v: float, z: float, toward_back: bool = False, length: float | None = None) -> None:
         """A cable lying on the top from (u, v): to the back edge and down, or loose."""
         r = float(self.rng.uniform(0.0022, 0.0035))
@@ -325,14 +380,40 @@ def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
                 float(rng.uniform(-40, 40)), 0.0015)
     # The board collides: objects stand on it (the stage is found on its top), not sunk in paper.
     dr.flat("board", w, d, cu, cv, yaw, BOARD, collide=True)
-    for _ in range(int(rng.integers(1, 3))):  # magazines open on its middle, under the objects
+    # Its free middle (7 x 5 of its 9 x 7 cells) covered by a poster, turned to fit, as the LM-O objects
+    # stand on one; sometimes an open magazine on that.
+    pw, ph = printed.SIZES["poster"]
+    across = BOARD_MIDDLE * d * 0.98
+    dr.flat("poster", across, across * ph / pw, cu, cv, yaw + 90.0, PAPER)
+    if rng.random() < 0.3:
         dr.flat("magazine", *MAGAZINE, cu + float(rng.uniform(-0.1, 0.1)) * w, cv + float(rng.uniform(-0.1, 0.1)) * d,
                 float(rng.uniform(-30, 30)), PAPER)
     _paper(dr, whole, n, avoid=(cu - w / 2, cv - d / 2, cu + w / 2, cv + d / 2))
 
 
+def _shelf(dr: _Dresser, stage, density: float) -> None:
+    """With a chance that grows with ``density``, an open shelf unit of binders and books against the
+    back edge of the top, beside or behind where the monitors stand."""
+    top, rng, lay = dr.top, dr.rng, dr.layout
+    d = min(0.3, top.depth / 2 - 0.012 - stage[3] - ITEM_GAP - 0.005)
+    w = min(float(rng.uniform(0.6, 1.1)), top.width - 0.3)
+    if rng.random() >= 0.45 * density or d < 0.16:
+        return
+    h = float(rng.uniform(0.3, 0.7))
+    v = top.depth / 2 - 0.012 - d / 2
+    while w >= 0.4:  # narrower where the monitors leave less room
+        for _ in range(6):
+            u = float(rng.uniform(-top.width / 2 + w / 2 + 0.012, top.width / 2 - w / 2 - 0.012))
+            box = (u - w / 2, v - d / 2, u + w / 2, v + d / 2)
+            if lay.free(box):
+                lay.taken.append(box)
+                dr.desk_shelf(u, v, w, d, h)
+                return
+        w *= 0.8
+
+
 def _back_row(dr: _Dresser, stage, density: float) -> None:
-    """Behind the stage area: monitors, a lamp, books, boxes, plants."""
+    """Behind the stage area: monitors, a lamp, a shelf unit, books, boxes, plants."""
     top, rng, lay = dr.top, dr.rng, dr.layout
     back = (-top.width / 2, stage[3], top.width / 2, top.depth / 2)
     for _ in range(max(1, _count(rng, 0.8, 2.2, density))):
@@ -345,6 +426,7 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
         spot = lay.place(reach, reach, back)
         if spot is not None:
             dr.lamp(lamp, spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))
+    _shelf(dr, stage, density)
     for _ in range(_count(rng, 1, 3, density)):
         upright = rng.random() < 0.5
         spot = lay.place(0.26 if upright else 0.26, 0.3, back)

@@ -31,8 +31,10 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # magazines than pages, a stronger desk lamp, the panel over the desk the brightest. 8: a flat item lies
 # on the flat items it overlaps, not on every one placed before it. 9: relief and roughness on a grid of 0.05.
 # 10: a marker board (room.boards) lies on magazines with magazines open on it, and collides; toys and laptops on
-# desks; a pinboard with pinned sheets above a desk against a wall.
-GENERATOR_VERSION = 10
+# desks; a pinboard with pinned sheets above a desk against a wall. 11: an open shelf unit of binders and books at
+# the back of a dressed top. 12: pinboards hang lower (where a camera looking at the desk sees the wall), with
+# more sheets; a poster covers the marker board's middle.
+GENERATOR_VERSION = 12
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -429,7 +431,8 @@ def pinboards(rng, W: float, D: float, window, placed: list[Placed], cache: Path
         x, y, _ = _on_wall(wall, W, D, s, w)
         if wall == "north" and x - w / 2 < window[1] + 0.1 and window[0] - 0.1 < x + w / 2 or w < 0.5:
             continue
-        z = float(open_top(p.item)) + float(rng.uniform(0.45, 0.6)) + h / 2
+        # Low, just over the desk's back row: the part of the wall a camera looking at the desk sees.
+        z = float(open_top(p.item)) + float(rng.uniform(0.2, 0.45)) + h / 2
         rot = (0.0, 0.0, WALL_YAW[wall])
         cork = printed.printed(cache, "cardboard", int(rng.integers(printed.VARIANTS["cardboard"])))
         meshes.append(SceneMesh(name=f"pinboard_{k:02d}", source={"box": (w, 0.015, h)}, collide=False,
@@ -439,7 +442,7 @@ def pinboards(rng, W: float, D: float, window, placed: list[Placed], cache: Path
         credits += list(cork.credits)
         spans.append((wall, s - w / 2, s + w / 2))
         nx, ny = INWARD[wall]
-        for j in range(int(rng.integers(3, 8))):  # pinned sheets, overlapping as they do
+        for j in range(int(rng.integers(5, 13))):  # pinned sheets, overlapping as they do
             kind = ("page", "poster", "cover", "page")[int(rng.integers(4))]
             sw = float(rng.uniform(0.15, 0.3))
             sh = sw / printed.SIZES[kind][0] * printed.SIZES[kind][1]
