@@ -465,6 +465,7 @@ def cmd_compare(args) -> int:
         if e["verdict"] != "matches":
             console.print(f"- {e['line']}", highlight=False)
     console.print(result["coverage"]["line"], highlight=False)
+    console.print(f"visible masks and fractions: occluded by {result['occluders']}", highlight=False)
     return 0
 
 

@@ -304,6 +304,36 @@ def test_compare_writes_its_json_and_sheet(lmo_root, tmp_path, capsys):
     assert "coverage:" in capsys.readouterr().out
 
 
+def test_against_a_split_without_masks_or_depth_both_sides_count_the_same_occluders(lmo_root, tmp_path, capsys):
+    """The real LM-O split has no masks or depth, so its visibility can only count the annotated objects
+    as occluders. A synthetic split whose own masks say otherwise (here: every instance a quarter
+    visible, as if distractors stood in front) is measured the way the real one is: its visible
+    fractions are the real ones of the same images, and the report says so."""
+    from specsynth.compare.pipeline import run_compare
+
+    data = small_split(lmo_root, tmp_path / "lmo", n=6)
+    computed = complete(open_split(str(data / "test")))
+    scene = data / "test" / "000002"
+    shutil.copytree(computed.computed / "000002" / "mask_visib", scene / "mask_visib")
+    info = json.loads((computed.computed / "000002" / "scene_gt_info.json").read_text())
+    for entries in info.values():
+        for e in entries:
+            e["visib_fract"], e["px_count_visib"] = 0.25, e["px_count_visib"] // 4
+    (scene / "scene_gt_info.json").write_text(json.dumps(info))
+    own = collect(open_split(str(data / "test")), jobs=1)
+    assert set(own.instances["visib_fract"]) == {0.25}  # its own labels, as written
+
+    res, synth, real = run_compare(str(data / "test"), "dataset:lmo/test", jobs=1)
+    n = len(synth.instances["visib_fract"])
+    assert n == len(own.instances["visib_fract"]) > 30
+    np.testing.assert_array_equal(synth.instances["visib_fract"], real.instances["visib_fract"][:n])
+    assert res["occluders"].startswith("the annotated objects alone")
+
+    # Against a split with its own masks, each side keeps its own.
+    res, synth, _ = run_compare(str(data / "test"), str(data / "test"), jobs=1)
+    assert set(synth.instances["visib_fract"]) == {0.25} and res["occluders"].startswith("as each split")
+
+
 # ---------------------------------------------------------------------- the installed set
 
 

@@ -48,19 +48,29 @@ def _key(split: Split, models: dict[int, Path], with_depth: bool) -> str:
                                       "pyrender": dist_version("pyrender")}).encode()).hexdigest()
 
 
-def complete(split: Split, models_dir: Path | None = None, *, log=None) -> Split:
-    """``split`` with every instance's gt info and visible mask, computed where the split has none."""
-    if split.has_gt_info and split.has_masks:
+def annotated_occluders_only(split: Split) -> bool:
+    """Whether ``split``'s visible masks are (or will be) computed with its annotated objects as the
+    only occluders: it has no masks and no depth images."""
+    return not (split.has_gt_info and split.has_masks) and not split.has_depth
+
+
+def complete(split: Split, models_dir: Path | None = None, *, log=None, annotated_occluders: bool = False) -> Split:
+    """``split`` with every instance's gt info and visible mask, computed where the split has none.
+    ``annotated_occluders``: computed in any case, with the annotated objects as the only occluders
+    (what a split without masks and depth gets), so that two splits are measured alike."""
+    if split.has_gt_info and split.has_masks and not annotated_occluders:
         return split
     models = check_models(split, models_dir or split.models)
-    with_depth = split.has_depth and all(im.depth is not None for im in split.iter_images())
+    with_depth = (not annotated_occluders and split.has_depth
+                  and all(im.depth is not None for im in split.iter_images()))
     folder = cache_dir() / "gtinfo" / _key(split, models, with_depth)
     done = folder / "done.json"
     if not done.is_file():
         if log:
-            log(f"{split.path}: no {'masks' if split.has_gt_info else 'scene_gt_info.json or masks'}; computing them "
-                f"from its poses and models ({'its depth images' if with_depth else 'the annotated objects'} as the "
-                f"occluders), once, into {folder}")
+            why = ("as the other split's are" if annotated_occluders else
+                   f"no {'masks' if split.has_gt_info else 'scene_gt_info.json or masks'}")
+            log(f"{split.path}: {why}; computing masks from its poses and models "
+                f"({'its depth images' if with_depth else 'the annotated objects'} as the occluders), once, into {folder}")
         _annotate_all(split, models, folder, with_depth)
         atomic_write_bytes(done, json.dumps({"images": split.n_images, "depth": with_depth}).encode())
     return replace(split, computed=folder, has_gt_info=True, has_masks=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .collect import Collected, collect
 from .comparison import compare
-from .gtinfo import complete
+from .gtinfo import annotated_occluders_only, complete
 from .split import Split, open_split
 
 
@@ -24,13 +24,24 @@ def open_both(synth_ref: str, real_ref: str, models: str | None = None) -> tuple
     return splits[0], splits[1]
 
 
-def measure(split: Split, models: str | None = None, jobs: int = 0, log=None) -> Collected:
-    return collect(complete(split, Path(models) if models else None, log=log), jobs=jobs)
+def measure(split: Split, models: str | None = None, jobs: int = 0, log=None,
+            annotated_occluders: bool = False) -> Collected:
+    return collect(complete(split, Path(models) if models else None, log=log,
+                            annotated_occluders=annotated_occluders), jobs=jobs)
 
 
 def run_compare(synth_ref: str, real_ref: str, models: str | None = None, jobs: int = 0, log=None):
-    """-> (the comparison, the synthetic side's numbers, the real side's)."""
+    """-> (the comparison, the synthetic side's numbers, the real side's). When the real split's
+    visibility can only be computed with its annotated objects as the occluders (no masks, no depth),
+    the synthetic side's is computed the same way: both sides are measured alike, and a distractor
+    in front of an object counts on neither."""
     synth, real = open_both(synth_ref, real_ref, models)
-    s = measure(synth, models, jobs, log)
+    alike = annotated_occluders_only(real) and synth.has_gt_info and synth.has_masks
+    if alike and not (synth.models or models):
+        alike = False  # nothing to render the synthetic objects from: its own masks are measured
+    s = measure(synth, models if not synth.models else None, jobs, log, annotated_occluders=alike)
     r = measure(real, models, jobs, log)
-    return compare(s, r), s, r
+    c = compare(s, r)
+    c["occluders"] = ("the annotated objects alone, on both sides (the real split has no masks or depth)" if alike
+                      else "as each split's own masks or depth have them")
+    return c, s, r

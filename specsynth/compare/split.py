@@ -296,9 +296,10 @@ def _listing(folder: Path, root: Path, what: str) -> dict[str, Path]:
 
 
 def _scene_json(split: Split, scene: Path, name: str, required: bool = False) -> dict | None:
-    """A scene's JSON file, from the scene folder or, where it has none, the computed folder."""
+    """A scene's JSON file, from the computed folder (``scene_gt_info.json``, when computed) or the
+    scene folder."""
     path = scene / name
-    if not path.exists() and split.computed is not None and name == "scene_gt_info.json":
+    if split.computed is not None and name == "scene_gt_info.json":
         path = split.computed / scene.name / name
     if not path.exists():
         if required:
@@ -320,7 +321,7 @@ def _read_scene(split: Split, scene: Path):
     cams = _scene_json(split, scene, "scene_camera.json") or {}
     info = _scene_json(split, scene, "scene_gt_info.json")
     computed_masks = split.computed / scene.name / "mask_visib" if split.computed is not None else None
-    mask_dir = scene / "mask_visib" if (scene / "mask_visib").is_dir() else computed_masks
+    mask_dir = computed_masks if computed_masks is not None else scene / "mask_visib" if (scene / "mask_visib").is_dir() else None
     rgb_dir = next((scene / d for d in ("rgb", "gray") if (scene / d).is_dir()), None)
     if rgb_dir is None:
         raise SplitError(f"{scene}: has no rgb/ folder")
