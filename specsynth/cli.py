@@ -451,7 +451,8 @@ def cmd_compare(args) -> int:
     from .compare.report import table, to_json, write
 
     log = (lambda m: print(m, file=sys.stderr)) if not (args.json or args.quiet) else None
-    result, synth, real = run_compare(args.synth, args.real, models=args.models, jobs=args.jobs, log=log)
+    result, synth, real = run_compare(args.synth, args.real, models=args.models, jobs=args.jobs, log=log,
+                                      own_masks=args.own_masks)
     if args.out:
         written = write(Path(args.out), result, synth, real)
         if log:
@@ -757,6 +758,10 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument("--models", help="BOP models folder, when a split has no masks and no models/ beside it")
     p.add_argument("--jobs", type=int, default=0, help="processes measuring images (default: the cores)")
+    p.add_argument("--own-masks", action="store_true",
+                   help="keep the synthetic split's own masks even when the real split's are computed with the "
+                        "annotated objects alone as occluders (by default the synthetic side is measured alike, "
+                        "which costs about 0.1 s per synthetic image, once)")
     p.set_defaults(fn=cmd_compare)
 
     p = sub.add_parser("fit", help="propose the spec whose images match a real split's statistics")

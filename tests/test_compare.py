@@ -329,8 +329,10 @@ def test_against_a_split_without_masks_or_depth_both_sides_count_the_same_occlud
     np.testing.assert_array_equal(synth.instances["visib_fract"], real.instances["visib_fract"][:n])
     assert res["occluders"].startswith("the annotated objects alone")
 
-    # Against a split with its own masks, each side keeps its own.
+    # Against a split with its own masks, each side keeps its own; and so it does when asked to.
     res, synth, _ = run_compare(str(data / "test"), str(data / "test"), jobs=1)
+    assert set(synth.instances["visib_fract"]) == {0.25} and res["occluders"].startswith("as each split")
+    res, synth, _ = run_compare(str(data / "test"), "dataset:lmo/test", jobs=1, own_masks=True)
     assert set(synth.instances["visib_fract"]) == {0.25} and res["occluders"].startswith("as each split")
 
 

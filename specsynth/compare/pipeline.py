@@ -30,13 +30,14 @@ def measure(split: Split, models: str | None = None, jobs: int = 0, log=None,
                             annotated_occluders=annotated_occluders), jobs=jobs)
 
 
-def run_compare(synth_ref: str, real_ref: str, models: str | None = None, jobs: int = 0, log=None):
+def run_compare(synth_ref: str, real_ref: str, models: str | None = None, jobs: int = 0, log=None,
+                own_masks: bool = False):
     """-> (the comparison, the synthetic side's numbers, the real side's). When the real split's
     visibility can only be computed with its annotated objects as the occluders (no masks, no depth),
     the synthetic side's is computed the same way: both sides are measured alike, and a distractor
-    in front of an object counts on neither."""
+    in front of an object counts on neither. ``own_masks``: the synthetic side keeps its own."""
     synth, real = open_both(synth_ref, real_ref, models)
-    alike = annotated_occluders_only(real) and synth.has_gt_info and synth.has_masks
+    alike = not own_masks and annotated_occluders_only(real) and synth.has_gt_info and synth.has_masks
     if alike and not (synth.models or models):
         alike = False  # nothing to render the synthetic objects from: its own masks are measured
     s = measure(synth, models if not synth.models else None, jobs, log, annotated_occluders=alike)
