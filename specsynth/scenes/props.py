@@ -2,10 +2,10 @@
 
 A dressed top keeps a free *stage area* (where the dataset's objects will be dropped; the stage
 finder finds it again in the geometry) and gets, around and behind it: monitors showing a
-photograph, a keyboard and a mouse, a desk lamp with its spot light, stacks of books, boxes,
-catalogue items (mugs, bottles, plants, phones, tools), cables, and flat printed matter (pages,
-magazines, a board of fiducial markers) lying everywhere, the stage area included, as under the
-LM-O objects. Flat printed matter is under 2 mm thick and does not collide (objects rest on the
+photograph, a keyboard and a mouse, a desk lamp with its spot light, an open shelf unit of binders
+and books, stacks of books, boxes, catalogue items (mugs, bottles, plants, phones, tools), cables,
+and flat printed matter (pages, magazines, a board of fiducial markers with a poster in its middle)
+lying everywhere, the stage area included, as under the LM-O objects. Flat printed matter is under 2 mm thick and does not collide (objects rest on the
 top through it, sinking at most that far), so it never changes where a stage is; only a marker board
 collides, so that the objects stand on it and the stage is found on its top.
 
