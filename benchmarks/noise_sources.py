@@ -70,7 +70,7 @@ def main() -> None:
 
     measure("cycles", "as built (Sobol QMC, light tree)", {"name": "cycles"})
     measure("cycles", "light tree off", {"name": "cycles"}, no_light_tree)
-    for sampler in ("independent", "stratified", "ldsampler"):
+    for sampler in ("independent", "stratified", "ldsampler", "multijitter", "orthogonal"):
         measure("mitsuba", sampler, {"name": "mitsuba", "sampler": sampler})
     print(f"\nbench view 0 of specs/demo.yaml at {spec.intrinsics.width}x{spec.intrinsics.height}, {args.spp} spp vs "
           f"each backend's own {args.ref}-spp reference (another seed)")

@@ -10,8 +10,9 @@ from .options import MitsubaOptions
 
 
 def samples_taken(options: MitsubaOptions, n: int) -> int:
-    """The samples per pixel Mitsuba renders when asked for ``n``: its stratified sampler takes the
-    next square, ldsampler the next power of four (at least 4), independent ``n``."""
+    """The samples per pixel Mitsuba renders when asked for ``n`` (``mapping.round_spp``): its
+    stratified sampler takes the next square, ldsampler the next power of four (at least 4),
+    independent ``n``."""
     from .mapping import round_spp  # numbers only: Mitsuba is not imported
 
     return round_spp(n, options.sampler)

@@ -4,5 +4,6 @@ from specsynth.run.bench import BenchSettings
 
 BENCH = BenchSettings(
     variants=(("denoise", {"denoise": True}), ("independent", {"sampler": "independent"}),
-              ("ldsampler", {"sampler": "ldsampler"})),
+              ("ldsampler", {"sampler": "ldsampler"}), ("multijitter", {"sampler": "multijitter"}),
+              ("orthogonal", {"sampler": "orthogonal"})),
 )

@@ -40,7 +40,8 @@ def mitsuba_max_depth(preset: QualityPreset) -> int:
 def round_spp(spp: int, sampler: str) -> int:
     """The count Mitsuba's sampler will really take (it rounds with a warning; we round first so
     stats and content are honest). ldsampler needs a square power of two (4**k), stratified a
-    perfect square."""
+    perfect square, multijitter a grid of isqrt(n) rows, orthogonal the square of a prime (at least
+    4); each rule checked against Mitsuba's own count for 1-399 (the backend's tests)."""
     spp = max(1, int(spp))
     if sampler == "ldsampler":
         n = 4
@@ -50,6 +51,14 @@ def round_spp(spp: int, sampler: str) -> int:
     if sampler == "stratified":
         r = math.isqrt(spp)
         return spp if r * r == spp else (r + 1) ** 2
+    if sampler == "multijitter":
+        rows = math.isqrt(spp)
+        return rows * -(-spp // rows)
+    if sampler == "orthogonal":
+        p = 2
+        while p * p < spp or any(p % k == 0 for k in range(2, math.isqrt(p) + 1)):
+            p += 1
+        return p * p
     return spp
 
 

@@ -12,10 +12,11 @@ from specsynth.spec.models import BackendOptions
 class MitsubaOptions(BackendOptions):
     name: Literal["mitsuba"] = "mitsuba"
     variant: Literal["auto", "llvm_ad_rgb", "scalar_rgb", "cuda_ad_rgb"] = "auto"
-    sampler: Literal["independent", "ldsampler", "stratified"] = Field(
+    sampler: Literal["independent", "ldsampler", "stratified", "multijitter", "orthogonal"] = Field(
         "stratified",
         description="Mitsuba sampler. stratified (jittered, needs a perfect square: the presets' 1/36/225 are) "
-        "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k.",
+        "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k, "
+        "multijitter to a grid of isqrt(n) rows, orthogonal to the square of a prime (docs/backends/mitsuba.md).",
     )
     match_cycles_bsdf: bool = Field(
         True,

@@ -31,6 +31,22 @@ def test_samples_override_and_sampler_rounding():
     assert mapping.round_spp(37, "independent") == 37
 
 
+@pytest.mark.parametrize("sampler", ["stratified", "ldsampler", "multijitter", "orthogonal"])
+def test_the_rounding_is_mitsubas_own(sampler):
+    """round_spp says the count Mitsuba's sampler takes, for every count asked up to 399 (in a child
+    process: choosing a Mitsuba variant is global state)."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import json, mitsuba as mi; mi.set_variant('scalar_rgb'); mi.set_log_level(mi.LogLevel.Error); "
+            f"print(json.dumps([mi.load_dict({{'type': '{sampler}', 'sample_count': n}}).sample_count() "
+            "for n in range(1, 400)]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got == [mapping.round_spp(n, sampler) for n in range(1, 400)]
+
+
 def test_principal_point_offsets_centre_is_zero():
     W, H = 64, 48
     K = np.array([[50.0, 0, (W - 1) / 2], [0, 50.0, (H - 1) / 2], [0, 0, 1]])
@@ -476,7 +492,7 @@ def test_the_plugin_says_which_counts_the_sampler_takes():
     raises when its sampler takes another), at least the count asked for and rising with it."""
     from specsynth_mitsuba import PLUGIN, MitsubaOptions
 
-    for sampler in ("independent", "stratified", "ldsampler"):
+    for sampler in ("independent", "stratified", "ldsampler", "multijitter", "orthogonal"):
         opts = MitsubaOptions(sampler=sampler)
         counts = [PLUGIN.sample_counts(opts, n) for n in range(1, 300)]
         assert all(c >= n for n, c in zip(range(1, 300), counts)) and counts == sorted(counts)
