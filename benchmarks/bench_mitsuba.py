@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--levels", nargs="+", default=["low", "medium", "high"], choices=list(PAPER_PRESETS))
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--sampler", default="independent", choices=["independent", "ldsampler", "stratified"])
+    ap.add_argument("--sampler", default="independent", choices=["independent", "ldsampler", "stratified", "multijitter", "orthogonal"])
     ap.add_argument("--variant", default="auto")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--json", type=Path)

@@ -344,7 +344,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=512)
     ap.add_argument("--width", type=int, default=96)
     ap.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if not --spp (it is noisier per sample)")
-    ap.add_argument("--mitsuba-sampler", default="independent", choices=["independent", "ldsampler", "stratified"])
+    ap.add_argument("--mitsuba-sampler", default="independent", choices=["independent", "ldsampler", "stratified", "multijitter", "orthogonal"])
     ap.add_argument("--depth", type=int, default=4)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default="bench-out/breakdown")
