@@ -177,9 +177,9 @@ def test_a_desk_shelf_stands_on_the_back_of_the_top_with_its_binders_inside(dept
         assert len(sides) == 2
         (ua, left), (ub, right) = sides
         v = _local(top, *left.transform.translation[:2])[1]
-        sd, h = left.source.box[1], left.source.box[2]
+        sd, h = left.source.box[1], left.source.box[2] + props.PANEL  # the sides stand under the top board
         assert v + sd / 2 < top.depth / 2 and v - sd / 2 > d.stage[3]  # at the back, behind the stage area
-        assert abs(left.transform.translation[2] - (top.z + h / 2)) < 1e-9
+        assert abs(left.transform.translation[2] - (top.z + left.source.box[2] / 2)) < 1e-9
         filled = [m for m in d.meshes if re.search(r"_(binder|book)_\d+$", m.name)
                   and ua < _local(top, *m.transform.translation[:2])[0] < ub
                   and abs(_local(top, *m.transform.translation[:2])[1] - v) < sd / 2]
@@ -194,6 +194,32 @@ def test_a_desk_shelf_stands_on_the_back_of_the_top_with_its_binders_inside(dept
             spans.append((round(z0, 6), u - t / 2, u + t / 2))
         for k, (z, a0, a1) in enumerate(spans):  # side by side on each level, never inside each other
             assert not any(z == z2 and a0 < b1 - 1e-9 and b0 < a1 - 1e-9 for z2, b0, b1 in spans[k + 1:])
+
+
+def _box_bounds(m):
+    """World axis-aligned bounds of a box mesh turned about z."""
+    (x, y, z), (sx, sy, sz) = m.transform.translation, m.source.box
+    c, s = abs(math.cos(math.radians(m.transform.rotation[2]))), abs(math.sin(math.radians(m.transform.rotation[2])))
+    hx, hy = (c * sx + s * sy) / 2, (s * sx + c * sy) / 2
+    return np.array([x - hx, y - hy, z - sz / 2]), np.array([x + hx, y + hy, z + sz / 2])
+
+
+def test_desk_shelves_stand_clear_of_the_pinboards_behind_them():
+    """A shelf unit at a desk's back and the pinboard over that desk share the wall's strip: no part
+    of one passes through the other (rooms of office desks, dense)."""
+    from specsynth.scenes import random_room
+
+    params = random_room.RoomParams(kinds=("office_desk",), density=2.0)
+    pairs = 0
+    for seed in range(40):
+        sf, _ = random_room.random_room(seed, cache_dir(), params=params)
+        shelves = [_box_bounds(m) for m in sf.meshes if "_shelf_" in m.name or "_binder" in m.name]
+        boards = [_box_bounds(m) for m in sf.meshes if m.name.startswith("pinboard_")]
+        pairs += bool(shelves and boards)
+        for lo, hi in shelves:
+            for blo, bhi in boards:
+                assert not (np.all(lo < bhi - 1e-6) and np.all(blo < hi - 1e-6)), seed
+    assert pairs >= 3
 
 
 def test_the_office_desk_room_drops_objects_on_its_focus_areas_alone():

@@ -48,10 +48,15 @@ def _key(split: Split, models: dict[int, Path], with_depth: bool) -> str:
                                       "pyrender": dist_version("pyrender")}).encode()).hexdigest()
 
 
+def _uses_depth(split: Split) -> bool:
+    """Whether computed masks take the split's depth images as the scene (every image has one)."""
+    return split.has_depth and all(im.depth is not None for im in split.iter_images())
+
+
 def annotated_occluders_only(split: Split) -> bool:
     """Whether ``split``'s visible masks are (or will be) computed with its annotated objects as the
-    only occluders: it has no masks and no depth images."""
-    return not (split.has_gt_info and split.has_masks) and not split.has_depth
+    only occluders: it has no masks, and not every image has a depth image."""
+    return not (split.has_gt_info and split.has_masks) and not _uses_depth(split)
 
 
 def complete(split: Split, models_dir: Path | None = None, *, log=None, annotated_occluders: bool = False) -> Split:
@@ -61,8 +66,7 @@ def complete(split: Split, models_dir: Path | None = None, *, log=None, annotate
     if split.has_gt_info and split.has_masks and not annotated_occluders:
         return split
     models = check_models(split, models_dir or split.models)
-    with_depth = (not annotated_occluders and split.has_depth
-                  and all(im.depth is not None for im in split.iter_images()))
+    with_depth = not annotated_occluders and _uses_depth(split)
     folder = cache_dir() / "gtinfo" / _key(split, models, with_depth)
     done = folder / "done.json"
     if not done.is_file():

@@ -37,7 +37,7 @@ def run_compare(synth_ref: str, real_ref: str, models: str | None = None, jobs: 
     the synthetic side's is computed the same way: both sides are measured alike, and a distractor
     in front of an object counts on neither. ``own_masks``: the synthetic side keeps its own."""
     synth, real = open_both(synth_ref, real_ref, models)
-    alike = not own_masks and annotated_occluders_only(real) and synth.has_gt_info and synth.has_masks
+    alike = not own_masks and annotated_occluders_only(real)
     if alike and not (synth.models or models):
         alike = False  # nothing to render the synthetic objects from: its own masks are measured
     s = measure(synth, models if not synth.models else None, jobs, log, annotated_occluders=alike)

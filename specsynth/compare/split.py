@@ -300,7 +300,9 @@ def _scene_json(split: Split, scene: Path, name: str, required: bool = False) ->
     scene folder."""
     path = scene / name
     if split.computed is not None and name == "scene_gt_info.json":
-        path = split.computed / scene.name / name
+        path = _computed_dir(split, scene) / name
+        if not path.is_file():
+            raise SplitError(f"{path}: computed {name} not found (remove the folder to compute it again)")
     if not path.exists():
         if required:
             raise SplitError(f"{path}: {name} not found (a BOP scene needs its ground-truth poses)")
@@ -309,6 +311,11 @@ def _scene_json(split: Split, scene: Path, name: str, required: bool = False) ->
     if not isinstance(data, dict) or (required and not data):
         raise SplitError(f"{path}: expected {'a non-empty' if required else 'an'} object of image ids")
     return data
+
+
+def _computed_dir(split: Split, scene: Path) -> Path:
+    """Where gtinfo wrote a scene's computed files: by its scene id, as BOP names scene folders."""
+    return split.computed / f"{int(scene.name) if SCENE_DIR.match(scene.name) else 0:06d}"
 
 
 def _read_scene(split: Split, scene: Path):
@@ -320,7 +327,7 @@ def _read_scene(split: Split, scene: Path):
         raise SplitError(f"{gt_path}: more than {MAX_IMAGES:,} images in the split")
     cams = _scene_json(split, scene, "scene_camera.json") or {}
     info = _scene_json(split, scene, "scene_gt_info.json")
-    computed_masks = split.computed / scene.name / "mask_visib" if split.computed is not None else None
+    computed_masks = _computed_dir(split, scene) / "mask_visib" if split.computed is not None else None
     mask_dir = computed_masks if computed_masks is not None else scene / "mask_visib" if (scene / "mask_visib").is_dir() else None
     rgb_dir = next((scene / d for d in ("rgb", "gray") if (scene / d).is_dir()), None)
     if rgb_dir is None:

@@ -51,6 +51,9 @@ BINDER_COLOURS = ((0.45, 0.03, 0.03), (0.03, 0.09, 0.4), (0.7, 0.5, 0.02), (0.04
                   (0.02, 0.02, 0.02), (0.75, 0.75, 0.73), (0.25, 0.06, 0.3))
 SHELF_FINISHES = ((0.8, 0.8, 0.78), (0.55, 0.4, 0.25), (0.3, 0.2, 0.12), (0.12, 0.12, 0.12), (0.6, 0.6, 0.62))
 PANEL = 0.018  # metres: a shelf board's thickness
+# metres: a shelf unit's back this far in from the top's back edge. A desk stands 10 mm from its wall
+# and a pinboard's sheets reach 36 mm out from the wall: 30 mm keeps the two apart.
+SHELF_BACK = 0.03
 
 
 @dataclass(frozen=True)
@@ -227,8 +230,9 @@ class _Dresser:
         z = self.top.z
         finish = SceneMaterial(base_color=SHELF_FINISHES[int(self.rng.integers(len(SHELF_FINISHES)))],
                                roughness=float(self.rng.uniform(0.4, 0.8)), specular=0.4)
-        for side in (-1, 1):
-            self.put("shelf_side", {"box": (PANEL, d, h)}, u + side * (w - PANEL) / 2, v, z + h / 2, 0.0, finish)
+        for side in (-1, 1):  # under the top board, not through it
+            self.put("shelf_side", {"box": (PANEL, d, h - PANEL)}, u + side * (w - PANEL) / 2, v, z + (h - PANEL) / 2,
+                     0.0, finish)
         self.put("shelf_top", {"box": (w, d, PANEL)}, u, v, z + h - PANEL / 2, 0.0, finish)
         self.put("shelf_back", {"box": (w - 2 * PANEL, 0.008, h - PANEL)}, u, v + d / 2 - 0.004, z + (h - PANEL) / 2,
                  0.0, finish)
@@ -355,9 +359,9 @@ def _paper(dr: _Dresser, area, count: int, page_share: float = 0.35, avoid=None)
 
 def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
     """Pages and magazines all over the top; with the chance ``board``, a marker board under the
-    stage area as in LM-O's photographs: lying on magazines that show round its edges, and with a
-    magazine or page on its middle, under the objects. Without a board, half the paper lies on or
-    over the stage area (objects stand on paper on real desks)."""
+    stage area as in LM-O's photographs: lying on magazines that show round its edges, with a
+    poster covering its middle and sometimes an open magazine on that, under the objects. Without a
+    board, half the paper lies on or over the stage area (objects stand on paper on real desks)."""
     top, rng = dr.top, dr.rng
     whole = (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
     n = _count(rng, 4, 10, density)
@@ -395,12 +399,12 @@ def _shelf(dr: _Dresser, stage, density: float) -> None:
     """With a chance that grows with ``density``, an open shelf unit of binders and books against the
     back edge of the top, beside or behind where the monitors stand."""
     top, rng, lay = dr.top, dr.rng, dr.layout
-    d = min(0.3, top.depth / 2 - 0.012 - stage[3] - ITEM_GAP - 0.005)
+    d = min(0.3, top.depth / 2 - SHELF_BACK - stage[3] - ITEM_GAP - 0.005)
     w = min(float(rng.uniform(0.6, 1.1)), top.width - 0.3)
     if rng.random() >= 0.45 * density or d < 0.16:
         return
     h = float(rng.uniform(0.3, 0.7))
-    v = top.depth / 2 - 0.012 - d / 2
+    v = top.depth / 2 - SHELF_BACK - d / 2
     while w >= 0.4:  # narrower where the monitors leave less room
         for _ in range(6):
             u = float(rng.uniform(-top.width / 2 + w / 2 + 0.012, top.width / 2 - w / 2 - 0.012))

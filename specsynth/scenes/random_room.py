@@ -33,8 +33,8 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # 10: a marker board (room.boards) lies on magazines with magazines open on it, and collides; toys and laptops on
 # desks; a pinboard with pinned sheets above a desk against a wall. 11: an open shelf unit of binders and books at
 # the back of a dressed top. 12: pinboards hang lower (where a camera looking at the desk sees the wall), with
-# more sheets; a poster covers the marker board's middle.
-GENERATOR_VERSION = 12
+# more sheets; a poster covers the marker board's middle. 13: the shelf unit stands clear of the pinboard.
+GENERATOR_VERSION = 13
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),

@@ -12,7 +12,7 @@ from .options import MitsubaOptions
 def samples_taken(options: MitsubaOptions, n: int) -> int:
     """The samples per pixel Mitsuba renders when asked for ``n`` (``mapping.round_spp``): its
     stratified sampler takes the next square, ldsampler the next power of four (at least 4),
-    independent ``n``."""
+    multijitter a grid of isqrt(n) rows, orthogonal the square of a prime, independent ``n``."""
     from .mapping import round_spp  # numbers only: Mitsuba is not imported
 
     return round_spp(n, options.sampler)
