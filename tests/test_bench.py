@@ -143,7 +143,7 @@ def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_pat
     from specsynth.model.colour import linear_to_srgb8
     from specsynth.model.ir import RenderResult
     from specsynth.plugins import BackendPlugin
-    from specsynth.run.bench import Setting, bench_setting
+    from specsynth.run.bench import Reference, Setting, bench_setting
     from specsynth.spec.models import BackendOptions, Quality
 
     mu = np.full((24, 32, 3), 0.4)
@@ -168,7 +168,7 @@ def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_pat
     plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
     spec = SimpleNamespace(quality=Quality(level="high"))
     shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
-    refs = {k: (mu.astype(np.float32), linear_to_srgb8(mu.astype(np.float32)), 0.0) for k in (0, 1)}
+    refs = {k: Reference(mu.astype(np.float32), linear_to_srgb8(mu.astype(np.float32)), 0.0) for k in (0, 1)}
     (tmp_path / "bench").mkdir()
     row = bench_setting(plugin, Noisy, Setting("x", "high+targeted", "high", {"__control__": "error"}), {"name": "x"},
                         spec, [(None, 0, 11), (None, 1, 12)], shots, refs, 1, tmp_path)
@@ -177,15 +177,72 @@ def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_pat
     assert row.samples == round(np.mean(per_view))
 
 
+def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_rendered(tmp_path):
+    """With --ref-factor 2 each half of the reference is the paper's high preset: its row comes
+    from the two halves, with the relMSE and PSNR an independent render of it has against the
+    reference's mean, and nothing rendered again. A stand-in renderer of known noise."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from specsynth.model.colour import linear_to_srgb8
+    from specsynth.model.ir import RenderResult
+    from specsynth.plugins import BackendPlugin
+    from specsynth.run.bench import Setting, bench_setting
+    from specsynth.spec.models import BackendOptions, Quality
+
+    mu = np.linspace(0.02, 0.9, 160 * 240 * 3).reshape(160, 240, 3)
+    renders = []
+
+    class Noisy:
+        def __init__(self, options, threads=0):
+            pass
+
+        def version(self):
+            return "noisy 1"
+
+        def load(self, scene):
+            pass
+
+        def render(self, cam, quality, seed, clamp=None):
+            n = quality.samples
+            renders.append(n)
+            x = mu * (1 + 1.0 / np.sqrt(n) * np.random.default_rng(seed).standard_normal(mu.shape))
+            x = np.clip(x, 0, None).astype(np.float32)
+            return RenderResult(rgb=linear_to_srgb8(x), linear=x, stats={"samples": n})
+
+        def close(self):
+            pass
+
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
+    spec = SimpleNamespace(quality=Quality(level="high"))
+    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
+    picked = [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)]
+    (tmp_path / "bench").mkdir()
+    refs = {}
+    args = ({"name": "x"}, spec, picked, shots, refs, 1, tmp_path)
+    bench_setting(plugin, Noisy, Setting("x", "reference", "high", {"__factor__": 2}, reference=True), *args)
+    assert renders == [225, 225]
+    halves = bench_setting(plugin, Noisy, Setting("x", "high", "high", {}), *args)
+    assert renders == [225, 225] and halves.samples == 225 and math.isnan(halves.ssim)
+    refs[0] = dataclasses.replace(refs[0], halves=None)  # as with another factor: rendered
+    rendered = bench_setting(plugin, Noisy, Setting("x", "high", "high", {}), *args)
+    assert renders == [225, 225, 225, 225]  # a warm-up and the timed render
+    assert halves.psnr == pytest.approx(rendered.psnr, abs=0.1)
+    assert halves.rel_mse == pytest.approx(rendered.rel_mse, rel=0.05)
+    assert halves.rel_mse == pytest.approx(np.mean(1 / 225 * mu**2 / (mu**2 + 0.01)), rel=0.05)
+    # another level's preset is not a half
+    assert bench_setting(plugin, Noisy, Setting("x", "medium", "medium", {}), *args).samples == 36
+
+
 @pytest.mark.slow
 def test_bench_targeted_row_and_cached_references(tmp_path):
     """`high+targeted` (quality.control: error) has per-view estimates and targets; a second run
     into the same folder renders no reference (they are cached by content) and measures the same
-    reference-based errors."""
+    reference-based errors; at --ref-factor 2 the plain `high` comes from the reference's halves."""
     out = tmp_path / "bench"
     cmd = [sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
-           "--views", "1", "--scale", "0.05", "--ref-factor", "1", "--backend", "cycles", "--levels", "high",
-           "--only", "high+targeted", "--set", "arrangements.count=1"]
+           "--views", "1", "--scale", "0.05", "--ref-factor", "2", "--backend", "cycles", "--levels", "high",
+           "--only", "high+targeted,high", "--set", "arrangements.count=1"]
     runs = []
     for _ in range(2):
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env={**os.environ, "COLUMNS": "250"})
@@ -198,3 +255,7 @@ def test_bench_targeted_row_and_cached_references(tmp_path):
         assert view["error_target"] > 0 and math.isfinite(view["error_estimate"]) and view["samples"] >= 2  # an estimate may be below 0
     ref = [next(r for r in rows if r["setting"] == "reference") for rows in runs]
     assert ref[0]["seconds"] == ref[1]["seconds"]  # the cached reference's own render time
+    high = [next(r for r in rows if r["setting"] == "high") for rows in runs]  # from the reference's halves
+    same = ("seconds", "rel_mse", "psnr", "ssim", "samples", "views")  # a scene load is timed again
+    assert [high[0][k] for k in same] == [high[1][k] for k in same] and high[0]["samples"] == 225 and high[0]["ssim"] is None
+    assert 0 < high[0]["rel_mse"] and 0 < high[0]["psnr"] < 100
