@@ -566,6 +566,10 @@ class BackendOptions(Strict):
     )
     denoise_quality: Literal["fast", "balanced", "high"] = Field(
         "high", description="OpenImageDenoise filter quality: 'balanced' costs about half of 'high' on the CPU.")
+    denoise_prefilter: Literal["none", "fast", "accurate"] = Field(
+        "none", description="How OpenImageDenoise treats its albedo and normal guides: 'none' takes them as clean "
+        "(noise in them stays in the image as grain), 'fast' denoises them with the image, 'accurate' denoises them "
+        "first in passes of their own. Backends that take the option say what each costs.")
     samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count "
                                 "(under quality.control: error, the first pair's samples per render).")
 

@@ -25,14 +25,17 @@ from .textures import register_product_texture
 from .variant import choose_variant
 
 
-def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray, quality: str = "high") -> np.ndarray:
-    """OpenImageDenoise (HDR, guided by albedo and normals) on the CPU, as Cycles runs it."""
+def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray, quality: str = "high",
+            clean_guides: bool = False) -> np.ndarray:
+    """OpenImageDenoise (HDR, guided by albedo and normals) on the CPU, as Cycles runs it;
+    ``clean_guides``: the guides are taken as noise-free (Cycles' prefilter 'none')."""
     try:
         import pyoidn
     except ImportError as e:
         raise RuntimeError("mitsuba: denoise needs pyoidn (pip install pyoidn; make install does)") from e
     out = pyoidn.denoise(np.ascontiguousarray(linear, np.float32), np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
-                         np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True, quality=quality)
+                         np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True, quality=quality,
+                         clean_aux=clean_guides)
     return np.ascontiguousarray(np.maximum(np.asarray(out, np.float32), 0.0))
 
 
@@ -152,7 +155,8 @@ class MitsubaBackend:
             guides = self._guides(sensor, seed_arg, min(st.spp, GUIDE_SPP))
             t1 = time.perf_counter()
             guide_seconds = t1 - t_read
-            linear = denoise(linear, albedo=guides[..., 0:3], normal=guides[..., 3:6], quality=self.options.denoise_quality)
+            linear = denoise(linear, albedo=guides[..., 0:3], normal=guides[..., 3:6], quality=self.options.denoise_quality,
+                             clean_guides=self.options.denoise_prefilter == "none")
             denoise_seconds = time.perf_counter() - t1
         stats = {
             "variant": self.variant,

@@ -18,6 +18,11 @@ class MitsubaOptions(BackendOptions):
         "measured 3.4 dB less noise than independent at 225 spp for the same cost; ldsampler rounds up to 4^k, "
         "multijitter to a grid of isqrt(n) rows, orthogonal to the square of a prime (docs/backends/mitsuba.md).",
     )
+    denoise_prefilter: Literal["none", "fast"] = Field(
+        "fast", description="How OpenImageDenoise treats the guides (albedo and normals from a 4-spp pass of their "
+        "own): 'fast' (OIDN's cleanAux off, as Cycles' 'fast') lets the filter denoise them with the image, 'none' "
+        "takes them as clean. Cycles' 'accurate' (separate guide passes) is not offered.",
+    )
     match_cycles_bsdf: bool = Field(
         True,
         description="Calibrate Mitsuba's principled BSDF to Blender's per-bounce albedo (dielectrics), so the "

@@ -440,18 +440,23 @@ def test_denoise_brings_a_noisy_render_near_the_reference(tmp_path):
     light = LightIR(kind="area", pose=_pose((0.2, 0.1, 0.9)), power=40.0, size=(0.6, 0.6))  # soft shadows: noisy at 1 spp
     scene = RenderScene(meshes=(floor, card), lights=(light,), world=WorldIR(color=(0.05, 0.05, 0.06)))
     cam = camera((0.9, -0.9, 1.1), (0, 0, 0), 80.0, 96, 72)
-    plain, noisy_dn = (MitsubaBackend({"variant": "auto", "denoise": d}, threads=2) for d in (False, True))
+    plain, noisy_dn, clean_guides = (MitsubaBackend({"variant": "auto", **o}, threads=2) for o in (
+        {"denoise": False}, {"denoise": True}, {"denoise": True, "denoise_prefilter": "none"}))
     try:
-        for b in (plain, noisy_dn):
+        for b in (plain, noisy_dn, clean_guides):
             b.load(scene)
         ref = plain.render(cam, quality(1024, 3), seed=9).linear
         raw = plain.render(cam, quality(1, 3), seed=1).linear
         den = noisy_dn.render(cam, quality(1, 3), seed=1)
+        taken_as_clean = clean_guides.render(cam, quality(1, 3), seed=1).linear
     finally:
         plain.close()
         noisy_dn.close()
+        clean_guides.close()
     mse = lambda a: float(((a - ref) ** 2).mean())  # noqa: E731
     assert den.stats["denoise_seconds"] >= 0 and mse(den.linear) < mse(raw) / 3, (mse(den.linear), mse(raw))
+    # the prefilter reaches OIDN: guides taken as clean (Cycles' 'none') give another image, still denoised
+    assert not np.array_equal(taken_as_clean, den.linear) and mse(taken_as_clean) < mse(raw) / 2
 
 
 # ----------------------------------------------------------------------------- files it keeps
