@@ -509,9 +509,19 @@ def cmd_fit(args) -> int:
     edits = [] if args.keep_cameras else fit.geometry_edits(real, args.real)
     if args.probe_images:
         probe = _fit_probe(args, edits, log)
-        fmt = {p.rgb.suffix.lower().lstrip(".") for p in real_split.iter_images()}
-        sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, "png" if fmt == {"png"} else None,
-                                       seed=loaded.spec.seed)
+        fmt = "png" if {p.rgb.suffix.lower().lstrip(".") for p in real_split.iter_images()} == {"png"} else None
+        sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, fmt, seed=loaded.spec.seed)
+        stops = 0.0
+        for _ in range(REPROBES):  # clipped, a probe also looks darker than it is: the next one clips less
+            again = fit.reprobe_exposure([rgb for rgb, _ in probe], cam)
+            if again is None:
+                break
+            stops = round(stops + again, 2)
+            log(f"probe: {100 * fit.clipped_share([rgb for rgb, _ in probe]):.1f} % of its pixels clip at 8 bits "
+                f"(median); rendering it again at {stops:+.2f} stops")
+            probe = _fit_probe(args, edits, log, exposure=stops)
+            sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, fmt, seed=loaded.spec.seed,
+                                           probe_stops=stops)
         edits += sensor
         if not args.no_object_colours:
             same = _same_models(loaded, Path(args.models) if args.models else real_split.models)
@@ -558,8 +568,12 @@ def _same_models(loaded, real_models: Path | None) -> set[int]:
     return out
 
 
-def _fit_probe(args, edits, log) -> list:
-    """The spec rendered small with the fitted cameras and a neutral sensor -> its 8-bit images."""
+REPROBES = 2  # probes rendered again at the exposure found, at most (each costs what the first did)
+
+
+def _fit_probe(args, edits, log, exposure: float = 0.0) -> list:
+    """The spec rendered small with the fitted cameras and a neutral sensor (at ``exposure``
+    stops) -> its 8-bit images."""
     from .assets.library.cache import cache_dir
     from .compare.split import open_split
     from .plan import keys
@@ -569,13 +583,14 @@ def _fit_probe(args, edits, log) -> list:
 
     arrangements = max(1, -(-args.probe_images // 4))
     sets = [f"{e.field}={json.dumps(e.value)}" for e in edits] + [
-        f"arrangements.count={arrangements}", "cameras.per_arrangement=4", "sensor.exposure=[0, 0]",
+        f"arrangements.count={arrangements}", "cameras.per_arrangement=4", f"sensor.exposure=[{exposure}, {exposure}]",
         "sensor.contrast=1", "sensor.saturation=1",
         "sensor.blur=null", "sensor.shot_noise=0", "sensor.read_noise=0", "outputs.image_format=png"]
     loaded = load_spec(args.spec, sets)
     graph = compile_spec(loaded)
     out = cache_dir() / "fit-probes" / keys.digest(loaded.spec.model_dump(mode="json"))[:16]
-    log(f"probe: {arrangements * 4} views of {args.spec} with the fitted cameras and a neutral sensor, into {out}")
+    log(f"probe: {arrangements * 4} views of {args.spec} with the fitted cameras and a neutral sensor at {exposure:+.2f} "
+        f"stops, into {out}")
     s = build(graph, out, jobs=args.jobs or 1, console=None)
     if not s.images and not s.kept_previous:  # kept: the folder's complete probe of this same spec
         raise FileNotFoundError(f"the probe build of {args.spec} wrote no image (see {out / 'failures.json'})")

@@ -69,6 +69,29 @@ def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise
     assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
 
 
+def test_a_probe_clipped_at_eight_bits_is_probed_again_at_the_exposure_found(real_photos):
+    """A probe two stops too bright clips its highlights at 8 bits: their colour and texture are
+    gone, and the tone curve and saturation fitted on it are made up (2.13 and 0.63 here). Rendered
+    again at the exposure it found (here: the photographs darkened before their 8 bits), the fit
+    finds the photographs' own camera."""
+    lin = [srgb8_to_linear(im) for im in real_photos]
+    real = _stats_of(real_photos)
+    over = [linear_to_srgb8(x * 4.0) for x in lin]
+    edits, cam = fit.sensor_edits(real, over, "test", None)
+    assert fit.clipped_share(over) > fit.CLIPPED_LIMIT >= fit.clipped_share(real_photos)
+    again = fit.reprobe_exposure(over, cam)
+    assert again is not None and -2.0 < again < -1.0  # clipped, the probe also looks darker than it is
+    assert fit.reprobe_exposure(real_photos, cam) is None  # nothing clipped: the probe stands
+    probe = [linear_to_srgb8(x * 4.0 * 2.0**again) for x in lin]
+    refit, _ = fit.sensor_edits(real, probe, "test", None, probe_stops=again)
+    first, second = ({e.field: e.value for e in x} for x in (edits, refit))
+    lo, hi = second["sensor.exposure"]
+    assert -2.15 < (lo + hi) / 2 < -1.85  # the probe's stops and the fit's together
+    # clipped, the probe had a made-up tone curve and colour; probed again, the photographs' own
+    for field, close in (("sensor.contrast", 0.1), ("sensor.saturation", 0.05)):
+        assert abs(second[field] - 1.0) < close < abs(first[field] - 1.0), (field, first[field], second[field])
+
+
 def _fitted(tmp_path: Path, spec: str, probe: int) -> tuple[Path, dict]:
     out = tmp_path / "fitted" / "spec.yaml"
     assert main(["fit", "dataset:lmo/test", spec, "-o", str(out), "--probe-images", str(probe), "--jobs", "2"]) == 0
