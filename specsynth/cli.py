@@ -164,10 +164,13 @@ def why_no_image(graph, s) -> str:
     if s.views_dropped:
         why = (f"every camera was rejected ({s.cameras_rejected} positions tried, up to cameras.max_tries = "
                f"{spec.cameras.max_tries} per view): none saw its object at least "
-               f"{spec.visibility.threshold:g} visible and in free space")
+               f"{spec.visibility.threshold:g} visible and in free space"
+               + (f", with at most {spec.visibility.near_share:g} of the image nearer than "
+                  f"{spec.visibility.near_distance:g} of the way to it" if spec.visibility.near_share < 1 else ""))
         pp = principal_point_note(spec.intrinsics)
         return f"{why}. {pp}" if pp else (f"{why}. Try a lower visibility.threshold, other cameras.distance or "
-                                          "cameras.elevation, or a larger cameras.max_tries")
+                                          "cameras.elevation, or a larger cameras.max_tries"
+                                          + (" or visibility.near_share" if spec.visibility.near_share < 1 else ""))
     return "no view was accepted; see failures.json in the output folder"
 
 

@@ -415,3 +415,23 @@ def test_free_distance_finds_cameras_inside_walls_and_objects():
         assert a.free_distance((0.0, 0.0, 1.3)) > 0.2  # in the room
     finally:
         a.close()
+
+
+@pytest.mark.parametrize("step", [1, 8])
+def test_near_share_measures_what_fills_the_view_in_front_and_leaves_labels_alone(annotator, tmp_path, step):
+    """A wall card 0.4 m in front of the camera over the left half of the image (columns 0-31 of
+    64), a backdrop at 2 m: half the image is nearer than 1 m, none nearer than 0.3 m, all of it
+    nearer than 3 m, at full size and from the 1/8 render alike; the labels after it are those
+    before it."""
+    wall = card(tmp_path, "wall", -10.0, 31.5, -10.0, 60.0, 0.4)
+    A = card(tmp_path, "A", 40.3, 50.7, 8.3, 28.7, 1.0, obj_id=1, inst=0)
+    backdrop = card(tmp_path, "backdrop", -200, 300, -200, 300, 2.0)
+    annotator.load(RenderScene(meshes=(wall, A, backdrop)))
+    cam = camera()
+    before = annotator.annotate(cam, DELTA)
+    assert annotator.near_share(cam, 1.0, step=step) == pytest.approx(0.5)
+    assert annotator.near_share(cam, 0.3, step=step) == 0.0
+    assert annotator.near_share(cam, 3.0, step=step) == 1.0
+    after = annotator.annotate(cam, DELTA)
+    assert after.instances == before.instances and np.array_equal(after.masks, before.masks)
+    assert annotator.visib_fract(cam, 0, DELTA) == before.instances[0].visib_fract == 1.0

@@ -616,3 +616,45 @@ def test_photo_baseline_bytes_do_not_depend_on_load_or_workers(tmp_path):
     da, db = tree_digest(tmp_path / "a"), tree_digest(tmp_path / "b")
     assert da.keys() == db.keys()
     assert [k for k in da if da[k] != db[k]] == []
+
+
+def test_accepted_cameras_keep_an_open_view_when_near_share_is_set(tmp_path):
+    """With visibility.near_share 0.1, no accepted camera has more than a tenth of its image nearer
+    than 0.8 of its distance to the target (counted by rays through the pixel centres of the 1/8
+    image, cast against every triangle of the scene); without the check, the same seed accepts
+    views with the floor nearer than that over a fifth of the image or more."""
+    from specsynth.model.records import ArrangementRecord, ViewRecord
+    from specsynth.run.store import Store
+    from specsynth.run.worker import World
+
+    W, H, step, near = 96, 72, 8, 0.8
+
+    def shares(near_share: float) -> list[float]:
+        spec = tmp_path / f"s{near_share}.yaml"
+        spec.write_text(SPEC.replace("count: 2", "count: 3").replace("per_arrangement: 3", "per_arrangement: 4")
+                        .replace("{width: 160, height: 120, fx: 143.1, fy: 143.4, cx: 81.3, cy: 60.5}",
+                                 f"{{width: {W}, height: {H}, fx: 85.8, fy: 86.1, cx: 48.2, cy: 36.3}}")
+                        + f"visibility: {{near_share: {near_share}, near_distance: {near}}}\n")
+        g = graph(spec)
+        out = tmp_path / f"out{near_share}"
+        build(g, out, jobs=1, until="view")
+        store, world = Store(out), World(g.inputs.arrange, spec.parent)
+        arrs = {a.arr: a for a in (ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange"))}
+        us, vs = np.meshgrid((np.arange(W // step) + 0.5) * step - 0.5, (np.arange(H // step) + 0.5) * step - 0.5)
+        pix = np.stack([us.ravel(), vs.ravel(), np.ones(us.size)], 1)
+        K = np.array([[85.8, 0, 48.2], [0, 86.1, 36.3], [0, 0, 1]])
+        found = []
+        for v in (ViewRecord.from_json(store.load("view", k)) for k in store.keys("view")):
+            if not v.accepted:
+                continue
+            R, t = np.asarray(v.R_w2c), np.asarray(v.t_w2c)
+            tris = _triangles(world.render_scene(arrs[v.arr]).meshes)
+            d_cam = pix @ np.linalg.inv(K).T
+            dirs = d_cam @ R / np.linalg.norm(d_cam, axis=1, keepdims=True)
+            z = _first_hit(-R.T @ t, dirs, tris) / np.linalg.norm(d_cam, axis=1)
+            found.append(float(np.mean(z < near * v.distance)))
+        return found
+
+    open_views = shares(0.1)
+    assert len(open_views) >= 6 and max(open_views) <= 0.1 + 1.5 / 108, open_views
+    assert max(shares(1.0)) >= 0.2

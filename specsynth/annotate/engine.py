@@ -376,6 +376,26 @@ class Annotator:
         self._factor_key = None  # the main camera is set anew by the next _set_camera
         return nearest
 
+    def near_share(self, camera: CameraIR, near: float, step: int = 8) -> float:
+        """Share of the image whose scene depth (along the optical axis) is under ``near`` metres,
+        from a depth render at 1/``step`` of the image's size (pinhole: a coarse look at what fills
+        the view, not a label)."""
+        self._require_scene()
+        self._set_camera(camera)
+        w, h = max(1, self.width // step), max(1, self.height // step)
+        sx, sy = w / self.width, h / self.height
+        K = camera.K_array.copy()
+        # Pixel centres at integer coordinates: a scaled image's centre c' = (c + 0.5) s - 0.5.
+        K[0, :] *= sx
+        K[1, :] *= sy
+        K[0, 2] += 0.5 * sx - 0.5
+        K[1, 2] += 0.5 * sy - 0.5
+        self._camera.K = K
+        self._renderer.viewport_width, self._renderer.viewport_height = w, h
+        depth = np.asarray(self._renderer.render(self._pscene, self._flags,
+                                                 seg_node_map={n: (255, 255, 255) for n in self._nodes}))
+        return float(np.count_nonzero((depth > 0) & (depth < near)) / depth.size)
+
     # ------------------------------------------------------------------ API
 
     def visib_fract(self, camera: CameraIR, inst: int, delta: float) -> float:

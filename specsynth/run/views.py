@@ -1,5 +1,6 @@
 """The view step: per camera job, sample cameras aimed at a random object until one sees enough of
-it (the visibility pre-check, through the lens when there is one) from free space."""
+it (the visibility pre-check, through the lens when there is one) from free space, with nothing
+filling the view in front of it."""
 
 from __future__ import annotations
 
@@ -62,7 +63,8 @@ class ViewStep:
             vf = (annot.visib_fract_lens(cam, warp, inp.intrinsics.distortion, focus.inst, inp.visibility.delta)
                   if warp else annot.visib_fract(cam, focus.inst, inp.visibility.delta))
             rec.tries += 1
-            if vf >= inp.visibility.threshold and in_free_space(annot, s, origin, inp.cameras.clearance):
+            if (vf >= inp.visibility.threshold and in_free_space(annot, s, origin, inp.cameras.clearance)
+                    and in_open_view(annot, cam, s.distance, inp.visibility)):
                 rec.accepted = True
                 rec.focus_inst, rec.focus_visib_fract = focus.inst, float(vf)
                 rec.R_w2c, rec.t_w2c = np.asarray(s.R_w2c).tolist(), np.asarray(s.t_w2c).tolist()
@@ -80,3 +82,12 @@ def in_free_space(annot, s, origin: np.ndarray, clearance: float) -> bool:
         return True
     eye = -np.asarray(s.R_w2c, np.float64).T @ np.asarray(s.t_w2c, np.float64)  # world frame
     return annot.free_distance(eye - origin) >= clearance
+
+
+def in_open_view(annot, cam, distance: float, visibility) -> bool:
+    """At most ``visibility.near_share`` of the image is nearer than ``visibility.near_distance`` of
+    the way to the target: no wall, shelf or chair back fills the view, as none does in a
+    photograph of a desk."""
+    if visibility.near_share >= 1.0:
+        return True
+    return annot.near_share(cam, visibility.near_distance * distance) <= visibility.near_share

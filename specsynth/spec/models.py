@@ -479,6 +479,17 @@ class Cameras(Strict):
 class Visibility(Strict):
     threshold: float = Field(0.3, ge=0, le=1, description="Min visible fraction of the focused object.")
     delta: float = Field(0.005, gt=0, le=1, description="Depth tolerance for visibility (BOP), metres.")
+    near_share: float = Field(
+        1.0, ge=0, le=1,
+        description="Most of the image that may lie nearer than near_distance (a wall, a shelf, a chair back "
+        "or a bottle filling the view in front of the objects, which a photographer would step around); "
+        "a camera over it is drawn again. 1 turns the check off.",
+    )
+    near_distance: float = Field(
+        0.5, gt=0, le=1,
+        description="'Near' for near_share, as a fraction of the camera's distance to its target, along the "
+        "optical axis.",
+    )
 
 
 # --------------------------------------------------------------------------- quality
