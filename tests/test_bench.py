@@ -234,6 +234,56 @@ def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_
     assert bench_setting(plugin, Noisy, Setting("x", "medium", "medium", {}), *args).samples == 36
 
 
+def test_references_are_shared_by_denoiser_settings_and_redrawn_for_a_new_renderer_revision(tmp_path):
+    """A reference is never denoised: benches of OIDN settings (another quality or prefilter in the
+    spec's backend block) read the references a first bench cached, and a backend plugin of a
+    new revision (which renders differently) draws its own."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from specsynth.model.ir import RenderResult
+    from specsynth.plugins import BackendPlugin
+    from specsynth.run.bench import Setting, bench_setting
+    from specsynth.spec.models import BackendOptions, Quality
+
+    renders = []
+
+    class Flat:
+        def __init__(self, options, threads=0):
+            pass
+
+        def version(self):
+            return "flat 1"
+
+        def load(self, scene):
+            pass
+
+        def render(self, cam, quality, seed, clamp=None):
+            renders.append(seed)
+            x = np.full((8, 8, 3), 0.5, np.float32)
+            return RenderResult(rgb=np.full((8, 8, 3), 188, np.uint8), linear=x, stats={"samples": quality.samples})
+
+        def close(self):
+            pass
+
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
+    spec = SimpleNamespace(quality=Quality(level="high"))
+    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
+    picked = [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)]
+    (tmp_path / "bench").mkdir()
+    ref = Setting("x", "reference", "high", {"__factor__": 2}, reference=True)
+
+    def bench_reference(p, **options):
+        bench_setting(p, Flat, ref, {"name": "x", **options}, spec, picked, shots, {}, 1, tmp_path)
+
+    bench_reference(plugin, denoise_quality="fast")
+    assert len(renders) == 2
+    bench_reference(plugin, denoise_quality="balanced", denoise_prefilter="fast")
+    assert len(renders) == 2
+    bench_reference(dataclasses.replace(plugin, revision=plugin.revision + 1))
+    assert len(renders) == 4
+
+
 @pytest.mark.slow
 def test_bench_targeted_row_and_cached_references(tmp_path):
     """`high+targeted` (quality.control: error) has per-view estimates and targets; a second run

@@ -359,7 +359,8 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
         loads.append(time.perf_counter() - t0)
         cam = shots.camera(vrec)
         if st.reference:
-            refs[i] = reference(backend, options, cam, preset, seed, spec.quality.clamp, arec, out, load=loads[-1])
+            refs[i] = reference(backend, options, cam, preset, seed, spec.quality.clamp, arec, out, load=loads[-1],
+                                revision=plugin.revision)
             write_png(out / "bench" / f"{plugin.name}_ref_{i}.png", refs[i].rgb)
             times.append(refs[i].half_seconds * 2)
             continue
@@ -426,15 +427,18 @@ REFERENCE_FORMAT = 2  # 2: the halves and the second half's time are kept
 
 
 def reference(backend, options, cam, preset: QualityPreset, seed: int, clamp, arec, out: Path,
-              load: float = 0.0) -> Reference:
+              load: float = 0.0, revision: int = 0) -> Reference:
     """A converged image of one view as two independent halves. Cached under
-    ``out/bench/references`` by everything that makes its pixels (renderer and options,
+    ``out/bench/references`` by everything that makes its pixels (renderer, its plugin's revision and options,
     arrangement, camera, samples, seeds): at VGA a reference costs minutes, and a bench run again
     into the same folder renders none it has."""
     import hashlib
     import json
 
-    key = hashlib.sha256(json.dumps([REFERENCE_FORMAT, backend.version(), options.model_dump(mode="json"),
+    # A reference is never denoised and renders its own samples: the options that set those do not
+    # change its pixels, so benches of denoiser settings share it.
+    drawn = options.model_dump(mode="json", exclude={"denoise", "denoise_quality", "denoise_prefilter", "samples"})
+    key = hashlib.sha256(json.dumps([REFERENCE_FORMAT, backend.version(), revision, drawn,
                                      arec.to_json(), repr(cam), preset.model_dump(), seed, REF_SEEDS, clamp],
                                     sort_keys=True, default=str).encode()).hexdigest()[:32]
     path = out / "bench" / "references" / f"{key}.npz"

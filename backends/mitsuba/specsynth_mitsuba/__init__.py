@@ -32,7 +32,8 @@ PLUGIN = BackendPlugin(
     distributions=("mitsuba", "drjit"),
     # 2: exact K sensor for fy != fx, stratified sampler, albedo calibrated to Cycles, sky units,
     # see-through area lights. 3: calibrated quality levels. 4: denoiser guides from their own pass.
-    revision=4,
+    # 5: the guides at the beauty's samples and seed.
+    revision=5,
     cost=(0.11, 0.122),
     checks="specsynth_mitsuba.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
