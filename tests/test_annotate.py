@@ -419,17 +419,17 @@ def test_free_distance_finds_cameras_inside_walls_and_objects():
 
 @pytest.mark.parametrize("step", [1, 8])
 def test_near_share_measures_what_fills_the_view_in_front_and_leaves_labels_alone(annotator, tmp_path, step):
-    """A wall card 0.4 m in front of the camera over the left half of the image (columns 0-31 of
-    64), a backdrop at 2 m: half the image is nearer than 1 m, none nearer than 0.3 m, all of it
-    nearer than 3 m, at full size and from the 1/8 render alike; the labels after it are those
-    before it."""
-    wall = card(tmp_path, "wall", -10.0, 31.5, -10.0, 60.0, 0.4)
+    """A wall card 0.4 m in front of the camera over columns 0-33 of 64, a backdrop at 2 m: 34/64
+    of the image is nearer than 0.9 m at full size, and 4/8 from the 1/8 render, whose pixel centres
+    fall on columns 3.5, 11.5, ... (without the half-pixel shift, on 0, 8, ..., 32: 5/8); none of
+    it is nearer than 0.3 m, all of it nearer than 3 m; the labels after it are those before it."""
+    wall = card(tmp_path, "wall", -10.0, 33.5, -10.0, 60.0, 0.4)
     A = card(tmp_path, "A", 40.3, 50.7, 8.3, 28.7, 1.0, obj_id=1, inst=0)
     backdrop = card(tmp_path, "backdrop", -200, 300, -200, 300, 2.0)
     annotator.load(RenderScene(meshes=(wall, A, backdrop)))
     cam = camera()
     before = annotator.annotate(cam, DELTA)
-    assert annotator.near_share(cam, 1.0, step=step) == pytest.approx(0.5)
+    assert annotator.near_share(cam, 0.9, step=step) == pytest.approx(34 / 64 if step == 1 else 0.5)
     assert annotator.near_share(cam, 0.3, step=step) == 0.0
     assert annotator.near_share(cam, 3.0, step=step) == 1.0
     after = annotator.annotate(cam, DELTA)

@@ -437,6 +437,8 @@ def reference(backend, options, cam, preset: QualityPreset, seed: int, clamp, ar
 
     # A reference is never denoised and renders its own samples: the options that set those do not
     # change its pixels, so benches of denoiser settings share it.
+    if options.denoise or options.samples is not None:
+        raise ValueError("a bench reference renders its own samples, undenoised")
     drawn = options.model_dump(mode="json", exclude={"denoise", "denoise_quality", "denoise_prefilter", "samples"})
     key = hashlib.sha256(json.dumps([REFERENCE_FORMAT, backend.version(), revision, drawn,
                                      arec.to_json(), repr(cam), preset.model_dump(), seed, REF_SEEDS, clamp],

@@ -19,8 +19,8 @@ class MitsubaOptions(BackendOptions):
         "multijitter to a grid of isqrt(n) rows, orthogonal to the square of a prime (docs/backends/mitsuba.md).",
     )
     denoise_prefilter: Literal["none", "fast"] = Field(
-        "fast", description="How OpenImageDenoise treats the guides (albedo and normals from a 4-spp pass of their "
-        "own): 'fast' (OIDN's cleanAux off, as Cycles' 'fast') lets the filter denoise them with the image, 'none' "
+        "fast", description="How OpenImageDenoise treats the guides (albedo and normals from a pass of their own with "
+        "the image's samples and seed): 'fast' (OIDN's cleanAux off, as Cycles' 'fast') lets the filter denoise them with the image, 'none' "
         "takes them as clean. Cycles' 'accurate' (separate guide passes) is not offered.",
     )
     match_cycles_bsdf: bool = Field(
