@@ -177,28 +177,18 @@ def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_pat
     assert row.samples == round(np.mean(per_view))
 
 
-def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_rendered(tmp_path):
-    """With --ref-factor 2 each half of the reference is the paper's high preset: its row comes
-    from the two halves, with the relMSE and PSNR an independent render of it has against the
-    reference's mean, and nothing rendered again. A stand-in renderer of known noise."""
-    import dataclasses
-    from types import SimpleNamespace
-
+def _stand_in(image, renders: list):
+    """A renderer class for ``bench_setting`` whose render of ``n`` samples and ``seed`` is
+    ``image(n, seed)`` (linear), each render's samples appended to ``renders``."""
     from specsynth.model.colour import linear_to_srgb8
     from specsynth.model.ir import RenderResult
-    from specsynth.plugins import BackendPlugin
-    from specsynth.run.bench import Setting, bench_setting
-    from specsynth.spec.models import BackendOptions, Quality
 
-    mu = np.linspace(0.02, 0.9, 160 * 240 * 3).reshape(160, 240, 3)
-    renders = []
-
-    class Noisy:
+    class StandIn:
         def __init__(self, options, threads=0):
             pass
 
         def version(self):
-            return "noisy 1"
+            return "stand-in 1"
 
         def load(self, scene):
             pass
@@ -206,18 +196,42 @@ def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_
         def render(self, cam, quality, seed, clamp=None):
             n = quality.samples
             renders.append(n)
-            x = mu * (1 + 1.0 / np.sqrt(n) * np.random.default_rng(seed).standard_normal(mu.shape))
-            x = np.clip(x, 0, None).astype(np.float32)
+            x = image(n, seed)
             return RenderResult(rgb=linear_to_srgb8(x), linear=x, stats={"samples": n})
 
         def close(self):
             pass
 
-    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
-    spec = SimpleNamespace(quality=Quality(level="high"))
-    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
-    picked = [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)]
+    return StandIn
+
+
+def _bench_of_one_view(tmp_path):
+    """(a backend plugin, a spec at `high`, the shots and the one picked view) for ``bench_setting``."""
+    from types import SimpleNamespace
+
+    from specsynth.plugins import BackendPlugin
+    from specsynth.spec.models import BackendOptions, Quality
+
     (tmp_path / "bench").mkdir()
+    return (BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X"),
+            SimpleNamespace(quality=Quality(level="high")),
+            SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec),
+            [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)])
+
+
+def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_rendered(tmp_path):
+    """With --ref-factor 2 each half of the reference is the paper's high preset: its row comes
+    from the two halves, with the relMSE and PSNR an independent render of it has against the
+    reference's mean, and nothing rendered again. A stand-in renderer of known noise."""
+    import dataclasses
+
+    from specsynth.run.bench import Setting, bench_setting
+
+    mu = np.linspace(0.02, 0.9, 160 * 240 * 3).reshape(160, 240, 3)
+    renders = []
+    Noisy = _stand_in(lambda n, seed: np.clip(mu * (1 + 1.0 / np.sqrt(n) * np.random.default_rng(seed).standard_normal(
+        mu.shape)), 0, None).astype(np.float32), renders)
+    plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
     refs = {}
     args = ({"name": "x"}, spec, picked, shots, refs, 1, tmp_path)
     bench_setting(plugin, Noisy, Setting("x", "reference", "high", {"__factor__": 2}, reference=True), *args)
@@ -239,38 +253,12 @@ def test_references_are_shared_by_denoiser_settings_and_redrawn_for_a_new_render
     spec's backend block) read the references a first bench cached, and a backend plugin of a
     new revision (which renders differently) draws its own."""
     import dataclasses
-    from types import SimpleNamespace
 
-    from specsynth.model.ir import RenderResult
-    from specsynth.plugins import BackendPlugin
     from specsynth.run.bench import Setting, bench_setting
-    from specsynth.spec.models import BackendOptions, Quality
 
     renders = []
-
-    class Flat:
-        def __init__(self, options, threads=0):
-            pass
-
-        def version(self):
-            return "flat 1"
-
-        def load(self, scene):
-            pass
-
-        def render(self, cam, quality, seed, clamp=None):
-            renders.append(seed)
-            x = np.full((8, 8, 3), 0.5, np.float32)
-            return RenderResult(rgb=np.full((8, 8, 3), 188, np.uint8), linear=x, stats={"samples": quality.samples})
-
-        def close(self):
-            pass
-
-    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
-    spec = SimpleNamespace(quality=Quality(level="high"))
-    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
-    picked = [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)]
-    (tmp_path / "bench").mkdir()
+    Flat = _stand_in(lambda n, seed: np.full((8, 8, 3), 0.5, np.float32), renders)
+    plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
     ref = Setting("x", "reference", "high", {"__factor__": 2}, reference=True)
 
     def bench_reference(p, **options):

@@ -305,8 +305,13 @@ class Annotator:
         K = camera.K_array.copy()
         K[0, 2] -= x0
         K[1, 2] -= y0
+        return self._depth(K, x1 - x0, y1 - y0, nodes)
+
+    def _depth(self, K: np.ndarray, w: int, h: int, nodes) -> np.ndarray:
+        """z-depth (float32, 0 = empty) of ``nodes`` in a ``w`` x ``h`` image of intrinsics ``K``
+        from the pose ``_set_camera`` gave."""
         self._camera.K = K
-        self._renderer.viewport_width, self._renderer.viewport_height = x1 - x0, y1 - y0
+        self._renderer.viewport_width, self._renderer.viewport_height = w, h
         depth = self._renderer.render(self._pscene, self._flags, seg_node_map={n: (255, 255, 255) for n in nodes})
         return np.asarray(depth, dtype=np.float32)
 
@@ -390,10 +395,7 @@ class Annotator:
         K[1, :] *= sy
         K[0, 2] += 0.5 * sx - 0.5
         K[1, 2] += 0.5 * sy - 0.5
-        self._camera.K = K
-        self._renderer.viewport_width, self._renderer.viewport_height = w, h
-        depth = np.asarray(self._renderer.render(self._pscene, self._flags,
-                                                 seg_node_map={n: (255, 255, 255) for n in self._nodes}))
+        depth = self._depth(K, w, h, self._nodes)
         return float(np.count_nonzero((depth > 0) & (depth < near)) / depth.size)
 
     # ------------------------------------------------------------------ API
