@@ -7,7 +7,11 @@ Hence, with the converged image replaced by the best estimate at hand as the nor
 
 - the error of their mean ``(a + b) / 2`` is ``mean((a - b)² / 4 / (norm² + ε))`` (its variance σ²/2);
 - the error of one render of ``N`` samples, from two raw renders of ``n`` samples each, is
-  ``mean((a - b)² / 2 · n / N / (norm² + ε))``: Monte Carlo variance falls as 1 / samples.
+  ``mean((a - b)² / 2 · (n / N)^α / (norm² + ε))``, where the variance of one render falls as
+  ``samples^-α``: α = 1 for independent samples; a renderer's stratified or quasi-random sampler
+  converges faster (measured on the demo's views: α 1.1-1.2 for Mitsuba between 16 and 225
+  samples, docs/quality.md), so an image under an error target measures its own α from pairs of
+  at least two sample counts (``convergence_rate``) before it may stop.
 
 Denoised renders are not unbiased: the first estimate then measures the denoised images' variance
 and not the detail the denoiser smooths away (docs/quality.md says by how much, measured).
@@ -28,7 +32,12 @@ EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not d
 # Bump when the code here changes what an error-targeted image is: part of the render key of
 # builds under quality.control: error (plan.compiler), so their cached renders are made again.
 # 2: the sample counts the backend takes, the record of the image kept, stereo eyes as one.
-REVISION = 2
+# 3: the target from the sampler's convergence rate measured on the image (not 1 / samples).
+REVISION = 3
+# The fastest fall of one render's variance with its samples that a target assumes: measured
+# rates above it are noise or a few-sample start (a stratified sampler is at most ~N^-1.5 on
+# smooth pixels and near 1 on the many-bounce paths that make most of a room's noise).
+MAX_RATE = 1.5
 
 
 def rel_mse(x: np.ndarray, ref: np.ndarray) -> float:
@@ -45,12 +54,27 @@ def split_rel_mse(a: np.ndarray, b: np.ndarray, norm: np.ndarray | None = None) 
 
 
 def extrapolated_rel_mse(a: np.ndarray, b: np.ndarray, samples: int, to_samples: int,
-                         norm: np.ndarray | None = None) -> float:
+                         norm: np.ndarray | None = None, rate: float = 1.0) -> float:
     """Estimated relative MSE of one render of ``to_samples`` samples per pixel, from two raw
-    (not denoised) independent renders of ``samples`` each: the paper preset's error at this view."""
+    (not denoised) independent renders of ``samples`` each, when one render's variance falls as
+    ``samples^-rate``: the paper preset's error at this view."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     norm = (a + b) / 2 if norm is None else np.asarray(norm, np.float64)
-    return float(np.mean((a - b) ** 2 / 2 / (norm**2 + EPS))) * samples / to_samples
+    return float(np.mean((a - b) ** 2 / 2 / (norm**2 + EPS))) * (samples / to_samples) ** rate
+
+
+def convergence_rate(variances: dict[int, float]) -> float | None:
+    """α in ``variance ∝ samples^-α`` from one render's mean variance at each sample count: the
+    least-squares slope of log variance on log samples over every count (one pair's variance
+    swings by ~10 % on a 320 x 240 room: two counts alone put the preset's error 15-20 % off),
+    within [1, MAX_RATE]; None with fewer than two counts."""
+    counts = sorted(n for n, v in variances.items() if v > 0)
+    if len(counts) < 2:
+        return None
+    x = np.log(np.asarray(counts, np.float64))
+    y = np.log(np.asarray([variances[n] for n in counts], np.float64))
+    slope = float(np.sum((x - x.mean()) * (y - y.mean())) / np.sum((x - x.mean()) ** 2))
+    return min(MAX_RATE, max(1.0, -slope))
 
 
 def denoised_rel_mse_map(d_a: np.ndarray, d_b: np.ndarray, a: np.ndarray, b: np.ndarray,
@@ -142,11 +166,15 @@ class TargetedResult:
     error_se: float = 0.0  # the estimate's standard error
     image_samples: int = 0  # samples per pixel in the result: all spent (raw), the last pair's (denoised)
     denoised: bool = False  # the result is the last pair denoised by the backend
+    # α in "one render's variance ∝ samples^-α", measured on this image; None: not measured (the
+    # budget ended first, or no noise), the target then assumed α = 1
+    rate: float | None = None
 
     def stats(self) -> dict:
         return {"samples": self.samples, "renders": self.renders, "image_samples": self.image_samples,
                 "denoised": self.denoised, "error_estimate": self.error, "error_se": self.error_se,
-                "error_target": self.target, "error_ratio": float(error_ratio(self.error, self.target))}
+                "error_target": self.target, "error_ratio": float(error_ratio(self.error, self.target)),
+                **({} if self.rate is None else {"error_rate": self.rate})}
 
 
 def error_ratio(estimate, target) -> np.ndarray:
@@ -216,31 +244,46 @@ def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, 
     return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1], samples, denoised)
 
 
-def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], paper_samples: int,
-                confidence: float) -> tuple[float, list[_Candidate]]:
-    """(the paper preset's estimated error at this view, [the raw candidate, the denoised one
-    when the backend denoises]). One normaliser for all of them, the denoised mean where there is
-    one: the raw mean of a few samples is so noisy that ``1 / (norm² + ε)`` of it inflates the
-    target (measured: 2-3x at 2 samples per render on a noisy image) and the stop comes early."""
+def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], pairs: list[tuple[int, np.ndarray]],
+                paper_samples: int, confidence: float) -> tuple[float, float | None, list[_Candidate]]:
+    """(the paper preset's estimated error at this view, the convergence rate it took or None when
+    not yet measured, [the raw candidate, the denoised one when the backend denoises]). One
+    normaliser for all of them, the denoised mean where there is one: the raw mean of a few
+    samples is so noisy that ``1 / (norm² + ε)`` of it inflates the target (measured: 2-3x at 2
+    samples per render on a noisy image) and the stop comes early. ``pairs``: every pair's
+    samples per render and the square of its two raw renders' difference."""
     a, b = raw.halves()
     raw_image = (a + b) / 2
     den_image = None if pair[0].noisy is None else (np.asarray(pair[0].linear, np.float64) + pair[1].linear) / 2
     norm2 = (raw_image if den_image is None else den_image) ** 2 + EPS
     raw_map = ((a - b) ** 2 / 4 / norm2).mean(axis=-1)
-    # the raw mean's error scaled from its samples to the paper's (see extrapolated_rel_mse)
-    paper_map = raw_map * 2 * min(raw.counts) / paper_samples
+    paper_map, rate = _paper_map(pairs, norm2, paper_samples)
     out = [_candidate(raw_image, raw_map, paper_map, confidence, sum(raw.counts), False)]
     if den_image is not None:
         (x, y) = pair
         den_map = denoised_rel_mse_map(x.linear, y.linear, x.noisy, y.noisy, norm=den_image).mean(axis=-1)
         out.append(_candidate(den_image, den_map, paper_map, confidence, sum(took), True))
-    return float(paper_map.mean()), out
+    return float(paper_map.mean()), rate, out
+
+
+def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_samples: int) -> tuple[np.ndarray, float | None]:
+    """Per pixel, the paper preset's estimated error: every pair's variance of one render scaled
+    from its samples to the paper's at the measured rate (1 until two counts are measured; see
+    ``extrapolated_rel_mse``), averaged with weights by samples; and the rate."""
+    maps = [(n, (sq / 2 / norm2).mean(axis=-1)) for n, sq in pairs]
+    by_count: dict[int, list[float]] = {}
+    for n, m in maps:
+        by_count.setdefault(n, []).append(float(m.mean()))
+    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()})
+    alpha = 1.0 if rate is None else rate
+    total = sum(n for n, _ in maps)
+    return sum(n * m * (n / paper_samples) ** alpha for n, m in maps) / total, rate
 
 
 def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int, raw: _Raw,
                  phases: dict[str, float]) -> tuple[list[RenderResult], list[int]]:
     """The ``first``-th and the next render of ``n`` samples, their raw samples added to ``raw``'s
-    two halves and their time to ``phases`` -> (the pair, the samples each took)."""
+    two halves and their time to ``phases`` -> (the pair, the samples each took; one count)."""
     pair, took = [], []
     for g in (0, 1):
         res = render(n, first + g)
@@ -255,19 +298,23 @@ def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int,
     return pair, took
 
 
-def _next_step(histories: list[list[tuple[int, float]]], n: int, spent: int, papers: list[float],
-               target: ErrorTarget) -> tuple[int, bool]:
+def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[int, bool]:
     """(samples per render of the next pairs, whether they are new pairs for the denoised way): the
-    cheaper way on for the image furthest from its target. More raw samples reach the target at
-    the paper's samples whatever the scene (the raw mean's error and the target are one variance,
-    at ``spent`` and at the paper's samples); new, larger denoised pairs (whose samples are all
-    new) are chosen only at half the cost of the raw way, their fall being predicted. 0 samples:
-    the budget is spent."""
-    raw_need = max(1, target.paper_samples - spent)
+    cheaper way on for the image furthest from its target. The raw mean of all renders is a mean
+    of independent renders, whose error falls as 1 / samples spent: the raw way needs what the
+    image furthest from its target needs at that fall; new, larger denoised pairs (whose samples
+    are all new) are chosen only at half the cost of the raw way, their fall being predicted.
+    While an image's convergence rate is not measured the next pairs take at least twice the last
+    pair's samples: a second count. 0 samples: the budget is spent."""
+    spent = max(image.spent for image in images)
+    raw_need = max(1, max(image.raw_need() for image in images) - spent)
+    histories, papers = [image.history for image in images], [image.paper for image in images]
     den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
     den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
-    n = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
-    return target.per_render(sample_step(n), target.max_samples - spent), den_step
+    n_next = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
+    if any(image.unmeasured() for image in images):
+        n_next = max(n_next, 2 * n)
+    return target.per_render(sample_step(n_next), target.max_samples - spent), den_step
 
 
 class _Progress:
@@ -276,15 +323,28 @@ class _Progress:
 
     def __init__(self, render: Callable[[int, int], RenderResult]) -> None:
         self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
-        self.spent, self.paper, self.candidates = 0, 0.0, []
+        self.spent, self.paper, self.rate, self.candidates = 0, 0.0, None, []
+        self.pairs: list[tuple[int, np.ndarray]] = []  # (samples per render, the raw renders' squared difference)
 
     def step(self, n: int, first: int, target: ErrorTarget, den_step: bool) -> None:
         pair, took = _render_pair(self.render, n, first, self.raw, self.phases)
         self.spent += sum(took)
         self.reported += [res.stats for res in pair]
-        self.paper, self.candidates = _candidates(self.raw, pair, took, target.paper_samples, target.confidence)
+        a, b = (np.asarray(res.noisy if res.noisy is not None else res.linear, np.float64) for res in pair)
+        self.pairs.append((took[0], ((a - b) ** 2).astype(np.float32)))
+        self.paper, self.rate, self.candidates = _candidates(self.raw, pair, took, self.pairs, target.paper_samples,
+                                                             target.confidence)
         if len(self.candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
             self.history.append((sum(took), self.candidates[1].upper))
+
+    def unmeasured(self) -> bool:
+        """Its target still assumes a rate: fewer than two sample counts rendered, and noise."""
+        return self.rate is None and self.paper > 0
+
+    def raw_need(self) -> int:
+        """The samples at which the raw mean's bound reaches the target (1 / samples)."""
+        upper = self.candidates[0].upper
+        return self.spent if upper <= self.paper or self.paper <= 0 else math.ceil(self.spent * upper / self.paper)
 
     def over(self, kind: int) -> float:
         """The candidate's upper bound over the target (an image without noise, target 0, is at it
@@ -301,7 +361,7 @@ class _Progress:
         made_of = self.reported[-2:] if best.denoised else self.reported
         res = RenderResult(rgb=encode(linear), linear=linear, stats={**shared_stats(made_of), "phases": self.phases})
         return TargetedResult(res, self.spent, renders, best.error, self.paper, self.history, best.se, best.samples,
-                              best.denoised)
+                              best.denoised, self.rate)
 
 
 def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
@@ -337,10 +397,9 @@ def render_group_to_target(renders: list[Callable[[int, int], RenderResult]], ta
         count += 2
         kinds = range(min(len(image.candidates) for image in images))
         kind = min(kinds, key=lambda k: max(image.over(k) for image in images))  # the raw mean on a tie
-        if all(image.candidates[kind].upper <= image.paper for image in images):
+        if all(image.candidates[kind].upper <= image.paper and not image.unmeasured() for image in images):
             break
-        spent = max(image.spent for image in images)
-        n, den_step = _next_step([image.history for image in images], n, spent, [image.paper for image in images], target)
+        n, den_step = _next_step(images, n, target)
         if n < 1:
             break
     return [image.result(kind, count, encode) for image in images]
