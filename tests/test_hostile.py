@@ -632,7 +632,9 @@ def test_ctrl_c_of_a_build_with_workers_prints_no_traceback(tmp_path):
     import time
 
     spec = obj_scene(tmp_path)
-    spec.write_text(SPEC.replace("count: 1", "count: 40"))
+    spec.write_text(SPEC.replace("count: 1", "count: 400"))
+    # 400 arrangements: a build a loaded machine cannot finish before the signal reaches it (with
+    # 40 it once ended with 0 before its pool had two workers to interrupt)
     p = subprocess.Popen([sys.executable, "-m", "specsynth.cli", "build", str(spec), "--out", str(tmp_path / "out"),
                           "--quiet", "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          start_new_session=True)
