@@ -132,6 +132,34 @@ def test_bench_refuses_an_unknown_setting_before_building_anything(tmp_path):
     assert not out.exists()
 
 
+def test_the_specs_shared_backend_options_reach_every_benched_backend():
+    """`--set backend.denoise_prefilter=none` on a Cycles spec benched with Mitsuba too: Mitsuba
+    renders with it (it was dropped: Mitsuba's rows ran its default), options the spec leaves at
+    their default stay the other backend's own, and a value the other backend does not take
+    fails, naming the option."""
+    from specsynth.plugins import backend_plugin
+    from specsynth.run.bench import base_options
+
+    cycles, mitsuba = backend_plugin("cycles"), backend_plugin("mitsuba")
+    spec_backend = cycles.options.model_validate({"name": "cycles", "denoise_prefilter": "none", "denoise": True,
+                                                  "adaptive_threshold": 0.01})
+    assert base_options(spec_backend, mitsuba) == {"name": "mitsuba", "denoise_prefilter": "none"}
+    own = base_options(spec_backend, cycles)
+    assert own["adaptive_threshold"] == 0.01 and "denoise" not in own and "samples" not in own
+    assert base_options(cycles.options.model_validate({"name": "cycles"}), mitsuba) == {"name": "mitsuba"}
+    with pytest.raises(ValueError, match="backend.denoise_prefilter"):
+        base_options(cycles.options.model_validate({"name": "cycles", "denoise_prefilter": "accurate"}), mitsuba)
+
+
+def test_bench_refuses_a_shared_option_another_backend_does_not_take_before_building_anything(tmp_path):
+    out = tmp_path / "bench"
+    r = subprocess.run([sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
+                        "--backend", "mitsuba", "--levels", "high", "--set", "backend.denoise_prefilter=accurate"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "backend.denoise_prefilter" in r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and not out.exists()
+
+
 def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_path):
     """Under an error target each view takes its own samples: the row's samples are their mean,
     as its seconds and errors are (the row reported the last view's). A stand-in renderer whose

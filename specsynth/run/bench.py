@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 from threadpoolctl import threadpool_limits
 
 from ..model.colour import linear_to_srgb8
@@ -277,11 +278,14 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
     intr = spec.intrinsics
     small = scaled_intrinsics(intr, scale)
     names = backends or [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
-    for name in names if only else ():  # a wrong label fails before anything is built
+    for name in names:  # a wrong label or option fails before anything is built
         try:
-            pick_settings(settings_for(backend_plugin(name), ref_factor, levels, ladder), only)
+            plugin = backend_plugin(name)
         except PluginNotFound:
-            pass  # reported (and skipped) below
+            continue  # reported (and skipped) below
+        if only:
+            pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
+        base_options(spec.backend, plugin)
     picked, cams = _views(graph, out, n_views)
     if not picked:
         raise RuntimeError("no accepted view to benchmark; widen the camera ranges")
@@ -295,8 +299,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             if console:
                 console.print(f"[yellow]skipping {name}: {e}[/yellow]")
             continue
-        # The spec's own options for this backend, minus what the bench varies (denoise, samples).
-        base_opts = spec.backend.model_dump(exclude={"denoise", "samples"}) if spec.backend.name == name else {"name": name}
+        base_opts = base_options(spec.backend, plugin)
         # One BLAS thread, as in a build's workers (tasks.Steps): only the renderer is timed.
         with threadpool_limits(limits=1, user_api="blas"):
             shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small))
@@ -315,6 +318,25 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, shots, preset, repeats))
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
     return rows, savings
+
+
+SHARED_OPTIONS = ("denoise_quality", "denoise_prefilter")  # BackendOptions fields a bench does not vary
+
+
+def base_options(spec_backend, plugin: BackendPlugin) -> dict:
+    """The options a backend is benched with: the spec's own, minus what the bench varies (denoise,
+    samples); for another backend than the spec's, the options every backend takes that the spec
+    sets (``--set backend.denoise_prefilter=none`` reaches every benched backend, as a spec swapped
+    by ``backend.name`` alone would render). A value the backend does not take is a ValueError."""
+    if spec_backend.name == plugin.name:
+        return spec_backend.model_dump(exclude={"denoise", "samples"})
+    opts = {"name": plugin.name, **{k: getattr(spec_backend, k) for k in SHARED_OPTIONS if k in spec_backend.model_fields_set}}
+    try:
+        plugin.options.model_validate(opts)
+    except ValidationError as e:
+        bad = "; ".join(f"backend.{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
+        raise ValueError(f"bench of {plugin.name!r}: the spec's {bad}") from None
+    return opts
 
 
 def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
