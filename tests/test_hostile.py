@@ -638,10 +638,12 @@ def test_ctrl_c_of_a_build_with_workers_prints_no_traceback(tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "specsynth.cli", "build", str(spec), "--out", str(tmp_path / "out"),
                           "--quiet", "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          start_new_session=True)
+    t0 = time.monotonic()
     try:
-        deadline = time.monotonic() + 120
+        deadline = t0 + 120
         while len(_children(p.pid)) < 2 and time.monotonic() < deadline and p.poll() is None:
             time.sleep(0.05)
+        seen = (_children(p.pid), round(time.monotonic() - t0, 2), p.poll())  # what the signal met
         time.sleep(0.3)
         os.killpg(p.pid, signal.SIGINT)
         _, err = p.communicate(timeout=120)
@@ -649,7 +651,7 @@ def test_ctrl_c_of_a_build_with_workers_prints_no_traceback(tmp_path):
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
             p.wait()
-    assert p.returncode == 130 and "interrupted" in err
+    assert p.returncode == 130 and "interrupted" in err, (p.returncode, seen, round(time.monotonic() - t0, 2), err[-400:])
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
 
 

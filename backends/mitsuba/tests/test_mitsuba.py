@@ -355,7 +355,7 @@ def test_new_arrangement_reuses_kernels(backend, tmp_path):
                   and (not k.get("cache_hit") or k.get("cache_disk"))]
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert not misses
+    assert not misses, [{key: k.get(key) for key in ("hash", "operation_count", "cache_disk", "cache_hit", "size")} for k in misses]
 
 
 @settings(max_examples=200, deadline=None)
