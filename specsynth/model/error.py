@@ -54,13 +54,13 @@ def split_rel_mse(a: np.ndarray, b: np.ndarray, norm: np.ndarray | None = None) 
 
 
 def extrapolated_rel_mse(a: np.ndarray, b: np.ndarray, samples: int, to_samples: int,
-                         norm: np.ndarray | None = None, rate: float = 1.0) -> float:
+                         norm: np.ndarray | None = None) -> float:
     """Estimated relative MSE of one render of ``to_samples`` samples per pixel, from two raw
-    (not denoised) independent renders of ``samples`` each, when one render's variance falls as
-    ``samples^-rate``: the paper preset's error at this view."""
+    (not denoised) independent renders of ``samples`` each, for a sampler whose variance falls as
+    1 / samples (an error target scales at the rate it measures: ``_paper_map``)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     norm = (a + b) / 2 if norm is None else np.asarray(norm, np.float64)
-    return float(np.mean((a - b) ** 2 / 2 / (norm**2 + EPS))) * (samples / to_samples) ** rate
+    return float(np.mean((a - b) ** 2 / 2 / (norm**2 + EPS))) * samples / to_samples
 
 
 def convergence_rate(variances: dict[int, float]) -> float | None:
@@ -268,8 +268,8 @@ def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], pairs: lis
 
 def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_samples: int) -> tuple[np.ndarray, float | None]:
     """Per pixel, the paper preset's estimated error: every pair's variance of one render scaled
-    from its samples to the paper's at the measured rate (1 until two counts are measured; see
-    ``extrapolated_rel_mse``), averaged with weights by samples; and the rate."""
+    from its samples to the paper's at the measured rate (1 until two counts are measured),
+    averaged with weights by samples; and the rate."""
     maps = [(n, (sq / 2 / norm2).mean(axis=-1)) for n, sq in pairs]
     by_count: dict[int, list[float]] = {}
     for n, m in maps:
