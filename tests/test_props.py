@@ -108,8 +108,8 @@ def _heights_below(tris: np.ndarray, xy: np.ndarray, z_top: float) -> np.ndarray
     return out
 
 
-@pytest.mark.parametrize("seed", [3, 11, 29])
-def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed):
+@pytest.mark.parametrize("seed, islands", [(3, 0.0), (11, 0.0), (29, 0.0), (5, 1.0)])
+def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed, islands):
     """A room that wants only its focus stages is searched inside its focus areas: each stage found
     lies in one, and straight below any point of it from its clearance height the first collider
     surface is the stage itself (nothing stands in the way; the surface is there, but for holes
@@ -118,7 +118,7 @@ def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed):
 
     from specsynth.spec.models import SceneRef
 
-    ref = SceneRef(name="random_room", stages=["focus"], room={"kinds": ["office_desk"]})
+    ref = SceneRef(name="random_room", stages=["focus"], room={"kinds": ["office_desk"], "islands": islands})
     scene = load_scene(ref, Path("."), variant=seed, clearance=0.6)
     solid = [m for m in scene.meshes if scene.colliders is None or m.name in scene.colliders]
     tris = np.concatenate([(read_mesh(m.mesh_path).vertices @ m.matrix[:3, :3].T + m.matrix[:3, 3])[read_mesh(m.mesh_path).faces]
@@ -133,6 +133,32 @@ def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed):
         assert (below <= st.height + 0.004).all(), st  # nothing in the way
         # the surface is there, but for holes finer than the 2 cm cells (a desk's cable grommet)
         assert np.mean(np.abs(below - st.height) <= 0.004) >= 0.95, st
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_an_island_keeps_its_stage_area_in_the_middle_with_low_things_in_front_and_the_rest_behind(seed):
+    top = props.Top(cx=0.2, cy=0.1, width=1.6, depth=1.6, yaw=30.0, z=0.75)
+    d = props.dress(top, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5, island=True)
+    u0, v0, u1, v1 = d.stage
+    assert v0 >= -top.depth / 2 + 0.25 - 1e-9 and v1 <= top.depth / 2 - 0.25 + 1e-9  # a row of things each side
+    front = [m for m in d.meshes if m.collide and _local(top, *m.transform.translation[:2])[1] < v0]
+    behind = [m for m in d.meshes if m.collide and _local(top, *m.transform.translation[:2])[1] > v1]
+    assert front and behind
+    assert not any(m.name.split("_")[1] in ("monitor", "lamp", "shelf") for m in front), [m.name for m in front]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_an_island_room_stands_its_worktop_free_in_the_middle(seed):
+    """room.islands: 1 puts the work surface (a bench, or two desks back to back) in the room's middle
+    with free floor all round; dressed first, its stage area is the room's first focus area."""
+    from specsynth.scenes.random_room import ISLAND_CLEAR, RoomParams, random_room
+
+    sf, _ = random_room(seed, cache_dir(), kind="office_desk", params=RoomParams(islands=1.0))
+    W, D = next(m for m in sf.meshes if m.name == "floor").source.plane
+    xy = np.array(sf.focus[0].polygon)
+    assert (np.abs(xy[:, 0]) <= W / 2 - ISLAND_CLEAR).all() and (np.abs(xy[:, 1]) <= D / 2 - ISLAND_CLEAR).all()
+    plain, _ = random_room(seed, cache_dir(), kind="office_desk")
+    assert sf.focus != plain.focus
 
 
 @pytest.mark.parametrize("seed", range(5))

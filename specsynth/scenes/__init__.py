@@ -86,7 +86,7 @@ def room_params(ref) -> random_room.RoomParams:
         wall_pieces=(round(6 * d0), max(round(6 * d0), round(10 * d1))),
         middle_pieces=(round(1 * d0), max(round(1 * d0), round(2 * d1))),
         categories=tuple(opts.categories) if opts.categories else None, clutter=tuple(opts.clutter),
-        pictures=tuple(opts.pictures), boards=float(opts.boards))
+        pictures=tuple(opts.pictures), boards=float(opts.boards), islands=float(opts.islands))
 
 
 def _scene_path(ref, spec_dir: Path) -> Path:

@@ -309,20 +309,27 @@ def _floor_extras() -> list[furniture.FurnitureItem]:
             and 0.45 < max(i.size) <= 0.7 and i.elevation == 0 and not i.light and not i.door_or_window]
 
 
-def stage_area(top: Top, rng) -> tuple[float, float, float, float]:
-    """The free rectangle for the dataset's objects: centred along the top, towards its front."""
+def stage_area(top: Top, rng, island: bool = False) -> tuple[float, float, float, float]:
+    """The free rectangle for the dataset's objects: centred along the top, towards its front; on an
+    island (a top worked at from all sides) in its middle, with a row of things in front of it too."""
     w = min(top.width - 0.1, max(0.45, float(rng.uniform(0.35, 0.5)) * top.width))
-    d = min(top.depth - 0.08, max(0.32, float(rng.uniform(0.5, 0.65)) * top.depth))
+    if island:
+        d = min(top.depth - 0.5, max(0.32, float(rng.uniform(0.4, 0.55)) * top.depth))
+        v = float(rng.uniform(-0.1, 0.1)) * (top.depth - d)
+    else:
+        d = min(top.depth - 0.08, max(0.32, float(rng.uniform(0.5, 0.65)) * top.depth))
+        v = -top.depth / 2 + 0.04 + d / 2
     u = float(rng.uniform(-0.15, 0.15)) * (top.width - w)
-    v = -top.depth / 2 + 0.04 + d / 2
     return u - w / 2, v - d / 2, u + w / 2, v + d / 2
 
 
-def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.35) -> Dressing:
+def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.35,
+          island: bool = False) -> Dressing:
     """Clutter on one work surface around a free stage area. ``density`` scales every count (0:
     nothing); ``board`` is the chance of a marker board lying under the stage area (LM-O's test
-    photographs have one under every object)."""
-    stage = stage_area(top, rng)
+    photographs have one under every object); an ``island`` has its stage area in the middle and
+    low things in front of it as well, so that a camera from any side sees a crowded top beyond."""
+    stage = stage_area(top, rng, island)
     if density <= 0:
         return Dressing(stage=stage)
     layout = _Layout(top, rng, stage)
@@ -331,6 +338,8 @@ def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: 
     _flat_layer(dr, stage, density, board)
     _back_row(dr, stage, density)
     _sides(dr, stage, density)
+    if island:
+        _front_row(dr, stage, density)
     for _ in range(int(round(density * rng.uniform(0, 2)))):
         dr.cable(float(rng.uniform(-top.width / 2, top.width / 2)), float(rng.uniform(stage[3], top.depth / 2)), top.z)
     return dr.out
@@ -463,6 +472,22 @@ def _sides(dr: _Dresser, stage, density: float) -> None:
             spot = lay.place(0.26, 0.3, zone)
             if spot is not None:
                 dr.books(spot[0], spot[1], float(rng.uniform(-25, 25)), upright=False)
+
+
+def _front_row(dr: _Dresser, stage, density: float) -> None:
+    """In front of an island's stage area: only low things (a keyboard, mugs, phones, tools, flat books),
+    which a camera on that side looks over rather than at."""
+    top, rng, lay = dr.top, dr.rng, dr.layout
+    zone = (-top.width / 2, -top.depth / 2, top.width / 2, stage[1])
+    if rng.random() < 0.5 * density:
+        spot = lay.place(0.46, 0.16, zone)
+        if spot is not None:
+            dr.keyboard(spot[0], spot[1], float(rng.uniform(-12, 12)))
+    _catalogue_items(dr, zone, ("drink", "office", "device", "tool"), _count(rng, 2, 5, density))
+    if rng.random() < 0.5 * density:
+        spot = lay.place(0.26, 0.3, zone)
+        if spot is not None:
+            dr.books(spot[0], spot[1], float(rng.uniform(-25, 25)), upright=False)
 
 
 def _catalogue_items(dr: _Dresser, zone, groups: tuple[str, ...], n: int) -> None:

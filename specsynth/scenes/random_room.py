@@ -34,7 +34,8 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # desks; a pinboard with pinned sheets above a desk against a wall. 11: an open shelf unit of binders and books at
 # the back of a dressed top. 12: pinboards hang lower (where a camera looking at the desk sees the wall), with
 # more sheets; a poster covers the marker board's middle. 13: the shelf unit stands clear of the pinboard.
-GENERATOR_VERSION = 13
+# 14: islands (room.islands): the work surface in the middle of the room, dressed on all sides.
+GENERATOR_VERSION = 14
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -76,6 +77,7 @@ class RoomParams:
     density: float = 1.0  # how much stands on work surfaces and the floor (props.dress); 0: nothing
     sun: float = 0.6  # chance of direct sunlight through the window
     boards: float = 0.35  # chance of a marker board under a dressed desk's stage area
+    islands: float = 0.0  # chance that the work surface stands in the middle, worked at from all sides
 OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
@@ -96,6 +98,11 @@ class Placed:
     yaw: float  # degrees; the front faces -Y at 0
     footprint: tuple[float, float, float, float]  # x0, y0, x1, y1
     middle: bool = False  # stands free in the room (not against a wall)
+    island: tuple[float, float, float, float] | None = None  # the shared top (x, y, w, d) of desks pushed together
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        return (self.island[0], self.island[1]) if self.island else (self.x, self.y)
 
 
 def _fits(items, room_w: float, room_d: float, room_h: float) -> list[furniture.FurnitureItem]:
@@ -145,10 +152,36 @@ def _worktop(rng, worktops: list[furniture.FurnitureItem], W: float, D: float, w
     return None
 
 
+ISLAND_CLEAR = 0.8  # metres of free floor round an island: where the cameras stand
+
+
+def _island(rng, worktops: list[furniture.FurnitureItem], W: float, D: float) -> list[Placed]:
+    """The work surface in the middle of the room, as a lab bench or two desks pushed together back to
+    back (one top about 1.2-1.8 m deep) -> its pieces, each knowing the shared top; [] when none fits."""
+    for _ in range(20):
+        item = worktops[int(rng.integers(len(worktops)))]
+        w, d = item.size[:2]
+        pair = d < 1.0
+        depth = 2 * d if pair else d
+        if w > W - 2 * ISLAND_CLEAR or depth > D - 2 * ISLAND_CLEAR:
+            continue
+        x = float(rng.uniform(-1, 1)) * (W / 2 - ISLAND_CLEAR - w / 2) * 0.5
+        y = float(rng.uniform(-1, 1)) * (D / 2 - ISLAND_CLEAR - depth / 2) * 0.5
+        top = (x, y, w, depth)
+        if not pair:
+            return [Placed(item, x, y, 0.0, (x - w / 2, y - d / 2, x + w / 2, y + d / 2), middle=True, island=top)]
+        # Back to back: the south desk faces -y (yaw 0), the north one +y (yaw 180), their backs meeting at y.
+        return [Placed(item, x, y + s * d / 2, yaw, (x - w / 2, y + min(0, s) * d, x + w / 2, y + max(0, s) * d),
+                       middle=True, island=top) for s, yaw in ((-1, 0.0), (1, 180.0))]
+    return []
+
+
 def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
-            worktops: list[furniture.FurnitureItem] | None = None) -> list[Placed]:
+            worktops: list[furniture.FurnitureItem] | None = None, island: float = 0.0) -> list[Placed]:
     placed: list[Placed] = []
-    if worktops:
+    if worktops and island > 0 and rng.random() < island:
+        placed += _island(rng, worktops, W, D)
+    if worktops and not placed:
         first = _worktop(rng, worktops, W, D, window)
         if first is not None:
             placed.append(first)
@@ -202,13 +235,17 @@ def is_worktop(item: furniture.FurnitureItem) -> bool:
 def dress_worktops(rng, placed: list[Placed], cache: Path, density: float, boards: float = 0.35):
     """Every work surface dressed -> (meshes, lights, credits, focus areas: its stage area)."""
     meshes, lights, credits, focus = [], [], [], []
+    dressed = set()
     for k, p in enumerate(placed):
-        if not is_worktop(p.item):
+        if not is_worktop(p.item) or (p.island is not None and p.island in dressed):
             continue
         # A piece against a wall has its back there; one in the middle is worked at from either side.
         yaw = p.yaw if not p.middle else p.yaw + 180.0 * int(rng.integers(2))
-        top = props.Top(p.x, p.y, p.item.size[0], p.item.size[1], yaw, float(open_top(p.item)))
-        d = props.dress(top, rng, cache, f"desk{k:02d}", density, board=boards)
+        x, y, w, depth = p.island or (p.x, p.y, p.item.size[0], p.item.size[1])
+        top = props.Top(x, y, w, depth, yaw, float(open_top(p.item)))
+        d = props.dress(top, rng, cache, f"desk{k:02d}", density, board=boards, island=p.island is not None)
+        if p.island is not None:
+            dressed.add(p.island)
         meshes += d.meshes
         lights += d.lights
         credits += d.credits
@@ -556,7 +593,8 @@ def _lights(rng, W: float, D: float, H: float, window, placed, small, params: Ro
     desk = next((p for p in placed if is_worktop(p.item)), None)
     share = [1.0 / n] * n
     if desk is not None:  # offices hang a panel over the desk: its top is the brightest place in the room
-        spots[0] = (desk.x, desk.y - (0.3 if not desk.middle else 0.0))
+        cx, cy = desk.centre
+        spots[0] = (cx, cy - (0.3 if not desk.middle else 0.0))
         share = [0.6] + [0.4 / (n - 1)] * (n - 1) if n > 1 else [1.0]
     lights = [LightDef(kind="area", power=total * f, size=size, color=colour, translation=(x, y, H - 0.02))
               for (x, y), f in zip(spots, share)]
@@ -604,7 +642,8 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
         raise furniture.LibraryError(f"no furniture of kind {kind!r} fits a {W:.1f} x {D:.1f} x {H:.1f} m room")
     worktops = [i for i in furniture.catalogue() if re.match(WORKTOPS[kind], i.id)] if kind in WORKTOPS else None
     placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(params.wall_pieces[0], params.wall_pieces[1] + 1)),
-                     n_middle=int(rng.integers(params.middle_pieces[0], params.middle_pieces[1] + 1)), worktops=worktops)
+                     n_middle=int(rng.integers(params.middle_pieces[0], params.middle_pieces[1] + 1)), worktops=worktops,
+                     island=params.islands)
     pieces, dressed = _furniture_meshes(rng, placed, cache, library)
     meshes += pieces
     credits += [p.item.credit for p in placed] + dressed

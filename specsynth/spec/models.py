@@ -207,6 +207,10 @@ class RoomOptions(Strict):
     boards: float = Field(0.35, ge=0, le=1, description="Chance that a dressed desk or bench has a board of square "
                           "fiducial markers under its stage area, lying on magazines, the objects standing on it: 1 for "
                           "test photographs like LM-O's, which show one under every object.")
+    islands: float = Field(0.0, ge=0, le=1, description="Chance that an office_desk or lab room's work surface "
+                           "stands in the middle of the room (a bench, or two desks back to back), its stage area in "
+                           "the middle of the top with things on every side, as on a lab table photographed from all "
+                           "round; else it stands against a wall, under the window when it fits.")
 
     @field_validator("clutter")
     @classmethod
