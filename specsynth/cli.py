@@ -764,8 +764,10 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
     p.add_argument("--levels", help="comma-separated quality levels to bench (default low,medium,high)")
     p.add_argument("--ladder", action="store_true",
-                   help="also each level at 1, 2, 4, ... samples with denoising: the cheapest that reaches its error")
-    p.add_argument("--only", help="comma-separated setting labels to bench (e.g. high,high+calibrated,high+denoise@2); "
+                   help="also each level at 1, 2, 4, ... samples with denoising: the cheapest that reaches its error; "
+                        "then rungs between the last short of it and the first reaching it, until they are 25 %% apart")
+    p.add_argument("--only", help="comma-separated setting labels to bench (e.g. high,high+calibrated,high+denoise@2; "
+                   "any high+denoise@N on a backend that denoises); "
                    "the reference always runs")
     p.set_defaults(fn=cmd_bench)
 

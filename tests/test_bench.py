@@ -95,6 +95,32 @@ def test_only_picks_the_named_settings_and_always_the_reference():
     assert picked[-1].reference and pick_settings(every, ()) == every
     with pytest.raises(ValueError, match=r"no setting 'high\+denoise@3'.*it has high, high\+calibrated"):
         pick_settings(every, ("high+denoise@3",))
+    # a backend that denoises takes any rung, not only the ladder's powers of two
+    picked = pick_settings(every, ("high", "high+denoise@20"), denoise=True)
+    assert [(s.label, s.options) for s in picked[:2]] == [("high", {}), ("high+denoise@20", {"denoise": True, "samples": 20})]
+    with pytest.raises(ValueError, match=r"no setting 'low\+denoise@20'"):
+        pick_settings(every, ("low+denoise@20",), denoise=True)
+
+
+def _rows(psnr_by_samples: dict[int, float], taken=None) -> list:
+    rows = [Row("c", "high", "high", 70.0, 7e-3, 31.7, 0.0, 225)]
+    return rows + [Row("c", f"high+denoise@{n}", "high", n / 3, 0.0, p, 0.9, (taken or {}).get(n, n))
+                   for n, p in psnr_by_samples.items()]
+
+
+def test_the_ladder_is_refined_between_its_last_rung_short_of_the_presets_error_and_its_first_reaching_it():
+    from specsynth.run.bench import finer_rung
+
+    assert finer_rung(_rows({16: 30.6, 32: 31.8}), "c", "high") == 23  # geometric mean of the bracket
+    assert finer_rung(_rows({16: 30.6, 23: 31.2, 32: 31.8}), "c", "high") == 27
+    assert finer_rung(_rows({16: 30.6, 23: 31.2, 27: 31.75, 32: 31.8}), "c", "high") is None  # 23 -> 27: narrow
+    assert finer_rung(_rows({8: 29.0, 16: 31.9, 32: 32.5}), "c", "high") == 11
+    assert finer_rung(_rows({16: 30.6, 32: 31.2}), "c", "high") is None  # none reaches it
+    assert finer_rung(_rows({16: 31.9, 32: 32.5}), "c", "high") is None  # the first rung reaches it
+    assert finer_rung(_rows({16: 30.6, 32: 31.8}), "m", "high") is None  # another backend's rows
+    # Mitsuba's stratified sampler takes the next square: 23 asked took 25, as 20 would
+    assert finer_rung(_rows({16: 30.0, 32: 31.8, 23: 31.5}, {32: 36, 23: 25}), "c", "high") == 27
+    assert finer_rung(_rows({16: 30.0, 32: 31.8, 23: 31.5, 20: 31.4}, {32: 36, 23: 25, 20: 25}), "c", "high") is None
 
 
 def test_bench_settings_are_the_backend_packages_own_not_the_plugin_records(tmp_path, monkeypatch):

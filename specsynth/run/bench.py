@@ -139,18 +139,37 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
             own = PAPER_PRESETS[level].samples
             n = 1
             while n < own:
-                out.append(Setting(plugin.name, f"{level}+denoise@{n}", level, {"denoise": True, "samples": n}))
+                out.append(rung(plugin.name, level, n))
                 n *= 2
     out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor}, reference=True))
     return out
 
 
-def pick_settings(settings: list[Setting], only: tuple[str, ...]) -> list[Setting]:
+def rung(plugin_name: str, level: str, samples: int) -> Setting:
+    """The level's light paths at ``samples`` with denoising: one rung of the ladder."""
+    return Setting(plugin_name, f"{level}+denoise@{samples}", level, {"denoise": True, "samples": samples})
+
+
+def _rung_samples(label: str, level: str) -> int | None:
+    """N of a label ``<level>+denoise@N`` (N >= 1), else None."""
+    head, _, n = label.partition("+denoise@")
+    return int(n) if head == level and n.isdigit() and int(n) >= 1 else None
+
+
+def pick_settings(settings: list[Setting], only: tuple[str, ...], denoise: bool = False) -> list[Setting]:
     """The settings labelled in ``only`` (all when empty), and always the reference every row needs.
-    A full ladder at VGA costs hours on a CPU; this benches the rows that answer one question."""
+    A full ladder at VGA costs hours on a CPU; this benches the rows that answer one question.
+    With ``denoise`` (the backend denoises) any rung ``<level>+denoise@N`` may be asked for, not only
+    the ladder's powers of two."""
     if not only:
         return settings
     labels = [st.label for st in settings if not st.reference]
+    levels = {st.level for st in settings if not st.reference}
+    extra = [x for x in only if x not in labels and denoise
+             and any(_rung_samples(x, lv) for lv in levels)]
+    settings = settings[:-1] + [rung(settings[0].backend, lv, _rung_samples(x, lv)) for x in extra for lv in levels
+                                if _rung_samples(x, lv)] + settings[-1:]
+    labels += extra
     unknown = [x for x in only if x not in labels]
     if unknown:
         raise ValueError(f"--only: no setting {', '.join(map(repr, unknown))} for backend "
@@ -284,7 +303,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         except PluginNotFound:
             continue  # reported (and skipped) below
         if only:
-            pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
+            pick_settings(settings_for(plugin, ref_factor, levels, ladder), only, plugin.capabilities.denoise)
         base_options(spec.backend, plugin)
     picked, cams = _views(graph, out, n_views)
     if not picked:
@@ -304,13 +323,17 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         with threadpool_limits(limits=1, user_api="blas"):
             shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small))
             refs: dict[int, Reference] = {}
-            settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only)
+            settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only, plugin.capabilities.denoise)
             settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
-            for st in settings:
+            refining = ladder and plugin.capabilities.denoise
+            while settings:
+                st = settings.pop(0)
                 rows.append(bench_setting(plugin, cls, st, base_opts, spec, picked, shots, refs, repeats, out))
                 if console:
                     r = rows[-1]
                     console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
+                if refining and not settings:
+                    settings = [rung(name, lv, n) for lv in levels for n in [finer_rung(rows, name, lv)] if n]
             level = spec.quality.paper_level
             savings += camera_savings(name, rows, level, cams, statistics.median(r.load for r in rows if r.backend == name), spec.cameras.per_arrangement)
             preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
@@ -488,6 +511,30 @@ def _drawer(backend, preset: QualityPreset, target, clamp):
     if target is None:
         return lambda cam, seed: backend.render(cam, preset, seed, clamp=clamp)
     return lambda cam, seed: draw_to_target(backend, [cam], preset, seed, target, clamp)[0][0]
+
+
+REFINE_RATIO = 1.25  # the ladder is refined until its bracket of the level's error is this narrow in samples
+
+
+def finer_rung(rows: list[Row], backend: str, level: str) -> int | None:
+    """The samples of the next rung between the ladder's last one short of the plain ``level``'s PSNR
+    and its first one reaching it (their geometric mean), while they are more than REFINE_RATIO apart
+    and the rung would be new; None when the bracket is narrow enough or there is none. A backend
+    may take more samples than asked (Mitsuba's stratified sampler takes the next square): a rung
+    whose samples taken equal another's ends the refining."""
+    plain = next((r for r in rows if r.backend == backend and r.setting == level), None)
+    rungs = [(n, r) for r in rows if r.backend == backend for n in [_rung_samples(r.setting, level)] if n]
+    if plain is None or not rungs:
+        return None
+    reach = sorted(n for n, r in rungs if r.psnr >= plain.psnr - 1e-9)
+    short = sorted(n for n, r in rungs if r.psnr < plain.psnr - 1e-9 and (not reach or n < reach[0]))
+    if not reach or not short or reach[0] <= short[-1] * REFINE_RATIO:
+        return None
+    taken = [r.samples for _, r in rungs]
+    if len(taken) != len(set(taken)):
+        return None
+    n = round((short[-1] * reach[0]) ** 0.5)
+    return n if n not in {m for m, _ in rungs} else None
 
 
 def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:
