@@ -7,6 +7,8 @@ BENCH = BenchSettings(
               ("denoise-accurate", {"denoise": True, "denoise_prefilter": "accurate"}),
               ("denoise-fast", {"denoise": True, "denoise_prefilter": "fast", "denoise_quality": "balanced"}),
               ("adaptive", {"adaptive_threshold": 0.01}),
+              # the ladder's denoise@128 with adaptive sampling: where it stops a pixel, OIDN takes over
+              ("adaptive+denoise@128", {"denoise": True, "samples": 128, "adaptive_threshold": 0.03}),
               # against the ladder's denoise@16 (bench --ladder): the same samples, guided
               ("guided@16", {"denoise": True, "samples": 16, "guiding": True})),
     toggles=(("light-path budget", "light_path_budget"),),
