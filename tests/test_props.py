@@ -161,6 +161,26 @@ def test_an_island_room_stands_its_worktop_free_in_the_middle(seed):
     assert sf.focus != plain.focus
 
 
+@pytest.mark.parametrize("seed", range(8))
+def test_the_floor_round_an_island_stays_free_of_other_furniture(seed):
+    import re
+
+    from specsynth.scenes.random_room import GAP, ISLAND_CLEAR, WORKTOPS, furnish, kind_items
+
+    rng = np.random.default_rng(seed)
+    worktops = [i for i in furniture.catalogue() if re.match(WORKTOPS["office_desk"], i.id)]
+    placed = furnish(rng, kind_items("office_desk"), 5.0, 4.5, (-0.8, 0.8, 0.9, 2.1), n_wall=12, n_middle=2,
+                     worktops=worktops, island=1.0)
+    island = [p for p in placed if p.island is not None]
+    assert 1 <= len(island) <= 2 and len(placed) > len(island)
+    for p in placed:
+        if p.island is None:
+            for q in island:
+                apart = max(q.footprint[0] - p.footprint[2], p.footprint[0] - q.footprint[2],
+                            q.footprint[1] - p.footprint[3], p.footprint[1] - q.footprint[3])
+                assert apart >= ISLAND_CLEAR - 1e-9, (p.item.id, apart)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_a_marker_board_lies_under_the_stage_area_inside_the_top(seed):
     """boards: 1 puts a colliding marker board under every stage area (as in every LM-O test

@@ -181,6 +181,10 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
     placed: list[Placed] = []
     if worktops and island > 0 and rng.random() < island:
         placed += _island(rng, worktops, W, D)
+    # The floor round an island stays free (the cameras stand there): later pieces keep out of it.
+    c = ISLAND_CLEAR - GAP
+    keep_out = [replace(p, footprint=(p.footprint[0] - c, p.footprint[1] - c, p.footprint[2] + c, p.footprint[3] + c))
+                for p in placed]
     if worktops and not placed:
         first = _worktop(rng, worktops, W, D, window)
         if first is not None:
@@ -192,7 +196,7 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
         for _ in range(40):
             item = pool[int(rng.integers(len(pool)))]
             pos = _against_wall(rng, item, W, D, window)
-            if pos is not None and not _overlaps(pos[3], placed):
+            if pos is not None and not _overlaps(pos[3], placed + keep_out):
                 placed.append(Placed(item, *pos))
                 break
     tables = [i for i in surfaces if i.size[0] > 0.5 and i.size[1] > 0.4]
@@ -204,7 +208,7 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
             x = float(rng.uniform(-W / 2 + w / 2 + 0.5, W / 2 - w / 2 - 0.5)) if W > w + 1.0 else 0.0
             y = float(rng.uniform(-D / 2 + d / 2 + 0.5, D / 2 - d / 2 - 0.5)) if D > d + 1.0 else 0.0
             fp = (x - w / 2, y - d / 2, x + w / 2, y + d / 2)
-            if not _overlaps(fp, placed):
+            if not _overlaps(fp, placed + keep_out):
                 placed.append(Placed(item, x, y, 90.0 if turn else 0.0, fp, middle=True))
                 break
     return placed
