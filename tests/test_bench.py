@@ -118,9 +118,47 @@ def test_the_ladder_is_refined_between_its_last_rung_short_of_the_presets_error_
     assert finer_rung(_rows({16: 30.6, 32: 31.2}), "c", "high") is None  # none reaches it
     assert finer_rung(_rows({16: 31.9, 32: 32.5}), "c", "high") is None  # the first rung reaches it
     assert finer_rung(_rows({16: 30.6, 32: 31.8}), "m", "high") is None  # another backend's rows
-    # Mitsuba's stratified sampler takes the next square: 23 asked took 25, as 20 would
-    assert finer_rung(_rows({16: 30.0, 32: 31.8, 23: 31.5}, {32: 36, 23: 25}), "c", "high") == 27
-    assert finer_rung(_rows({16: 30.0, 32: 31.8, 23: 31.5, 20: 31.4}, {32: 36, 23: 25, 20: 25}), "c", "high") is None
+
+
+def test_the_ladder_is_refined_by_the_samples_a_rounding_backend_takes():
+    """Mitsuba's stratified sampler renders the next square: its whole ladder (1, 2, 4, ... asked;
+    1, 4, 4, 9, 16, 36 taken) is refined at a square between the bracket's counts taken, asked as
+    itself, and not at all when no square lies between them."""
+    from specsynth.run.bench import finer_rung
+
+    square = lambda n: math.isqrt(n - 1) ** 2 + 2 * math.isqrt(n - 1) + 1  # noqa: E731 - the next square
+    ladder = {1: 20.0, 2: 24.0, 4: 24.0, 8: 27.0, 16: 30.6, 32: 31.8}
+    taken = {n: square(n) for n in ladder}
+    assert [taken[n] for n in ladder] == [1, 4, 4, 9, 16, 36]
+    assert finer_rung(_rows(ladder, taken), "c", "high", square) == 25
+    assert finer_rung(_rows({**ladder, 25: 31.5}, {**taken, 25: 25}), "c", "high", square) is None  # 25 -> 36: none
+    # a backend that rounds without saying so: each asked count is tried once, then the refining ends
+    rows, asked = _rows(ladder, taken), []
+    while (n := finer_rung(rows, "c", "high")) is not None:
+        asked.append(n)
+        rows += _rows({n: 31.5}, {n: square(n)})[1:]
+    assert asked and len(asked) == len(set(asked)) and len(asked) < 20
+
+
+def test_the_refined_rungs_are_benched_after_the_ladder_each_once_until_the_bracket_is_narrow():
+    """run_bench's loop (bench_in_turn with finer_rung) on a renderer whose PSNR rises with log samples."""
+    from specsynth.run.bench import Setting, bench_in_turn, finer_rung, rung
+
+    def bench_one(st: Setting) -> Row:
+        if st.label == "high":
+            return Row("c", "high", "high", 70.0, 0.0, 31.7, 0.0, 225)
+        n = st.options["samples"]
+        return Row("c", st.label, "high", n / 3, 0.0, 28.0 + math.log2(n) * 0.7, 0.9, n)
+
+    ladder = [Setting("c", "high", "high", {})] + [rung("c", "high", n) for n in (1, 2, 4, 8, 16, 32, 64, 128)]
+    rows = bench_in_turn(ladder, bench_one, lambda done: [rung("c", "high", n) for n in [finer_rung(done, "c", "high")] if n])
+    labels = [r.setting for r in rows]
+    assert len(labels) == len(set(labels)) and labels[: len(ladder)] == [s.label for s in ladder]
+    refined = [r.samples for r in rows[len(ladder):]]
+    assert refined  # 28 + 0.7 log2(n) reaches 31.7 at n = 39: between 32 and 64
+    reach = min(r.samples for r in rows if r.setting != "high" and r.psnr >= 31.7)
+    short = max(r.samples for r in rows if r.setting != "high" and r.psnr < 31.7)
+    assert short < 39 <= reach <= short * 1.25
 
 
 def test_bench_settings_are_the_backend_packages_own_not_the_plugin_records(tmp_path, monkeypatch):

@@ -108,7 +108,7 @@ def _heights_below(tris: np.ndarray, xy: np.ndarray, z_top: float) -> np.ndarray
     return out
 
 
-@pytest.mark.parametrize("seed, islands", [(3, 0.0), (11, 0.0), (29, 0.0), (5, 1.0)])
+@pytest.mark.parametrize("seed, islands", [(3, 0.0), (11, 0.0), (29, 0.0), (5, 1.0), (7, 1.0), (9, 1.0)])
 def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed, islands):
     """A room that wants only its focus stages is searched inside its focus areas: each stage found
     lies in one, and straight below any point of it from its clearance height the first collider
@@ -135,15 +135,18 @@ def test_focus_stages_searched_in_their_areas_are_free_surfaces_there(seed, isla
         assert np.mean(np.abs(below - st.height) <= 0.004) >= 0.95, st
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_an_island_keeps_its_stage_area_in_the_middle_with_low_things_in_front_and_the_rest_behind(seed):
-    top = props.Top(cx=0.2, cy=0.1, width=1.6, depth=1.6, yaw=30.0, z=0.75)
-    d = props.dress(top, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5, island=True)
+@pytest.mark.parametrize("seed, depth, seam", [(0, 1.6, False), (1, 1.6, True), (2, 1.05, False), (3, 1.2, True),
+                                              (4, 1.2, True), (5, 1.8, True)])
+def test_an_island_keeps_its_stage_area_in_the_middle_with_low_things_in_front_and_the_rest_behind(seed, depth, seam):
+    top = props.Top(cx=0.2, cy=0.1, width=1.6, depth=depth, yaw=30.0, z=0.75)
+    d = props.dress(top, np.random.default_rng(seed), cache_dir(), "desk00", density=1.5, island=True, seam=seam)
     u0, v0, u1, v1 = d.stage
-    assert v0 >= -top.depth / 2 + 0.25 - 1e-9 and v1 <= top.depth / 2 - 0.25 + 1e-9  # a row of things each side
-    front = [m for m in d.meshes if m.collide and _local(top, *m.transform.translation[:2])[1] < v0]
+    assert v0 >= -top.depth / 2 + 0.2 - 1e-9 and v1 <= top.depth / 2 - 0.2 + 1e-9  # a row of things each side
+    assert not seam or v0 >= props.SEAM_GAP - 1e-9 or v1 <= -props.SEAM_GAP + 1e-9  # beside the seam, not across
+    assert v1 - v0 >= 0.32 - 1e-9
+    front = [m for m in d.meshes if m.collide and (lambda u, v: u0 < u < u1 and v < v0)(*_local(top, *m.transform.translation[:2]))]
     behind = [m for m in d.meshes if m.collide and _local(top, *m.transform.translation[:2])[1] > v1]
-    assert front and behind
+    assert front and behind  # straight in front of the stage: only the front row puts things there
     assert not any(m.name.split("_")[1] in ("monitor", "lamp", "shelf") for m in front), [m.name for m in front]
 
 
@@ -165,7 +168,7 @@ def test_an_island_room_stands_its_worktop_free_in_the_middle(seed):
 def test_the_floor_round_an_island_stays_free_of_other_furniture(seed):
     import re
 
-    from specsynth.scenes.random_room import GAP, ISLAND_CLEAR, WORKTOPS, furnish, kind_items
+    from specsynth.scenes.random_room import ISLAND_CLEAR, WORKTOPS, _floor_spots, furnish, island_keep_out, kind_items
 
     rng = np.random.default_rng(seed)
     worktops = [i for i in furniture.catalogue() if re.match(WORKTOPS["office_desk"], i.id)]
@@ -173,6 +176,11 @@ def test_the_floor_round_an_island_stays_free_of_other_furniture(seed):
                      worktops=worktops, island=1.0)
     island = [p for p in placed if p.island is not None]
     assert 1 <= len(island) <= 2 and len(placed) > len(island)
+    spots = _floor_spots(rng, 5.0, 4.5, placed + island_keep_out(placed), 4)  # bins and boxes keep out too
+    for x, y in spots:
+        for q in island:
+            apart = max(q.footprint[0] - (x + 0.3), (x - 0.3) - q.footprint[2], q.footprint[1] - (y + 0.3), (y - 0.3) - q.footprint[3])
+            assert apart >= ISLAND_CLEAR - 1e-9, (x, y, apart)
     for p in placed:
         if p.island is None:
             for q in island:

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import csv
 import importlib
+import math
 import statistics
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from pydantic import ValidationError
@@ -157,24 +159,26 @@ def _rung_samples(label: str, level: str) -> int | None:
 
 
 def pick_settings(settings: list[Setting], only: tuple[str, ...], denoise: bool = False) -> list[Setting]:
-    """The settings labelled in ``only`` (all when empty), and always the reference every row needs.
-    A full ladder at VGA costs hours on a CPU; this benches the rows that answer one question.
-    With ``denoise`` (the backend denoises) any rung ``<level>+denoise@N`` may be asked for, not only
-    the ladder's powers of two."""
+    """The settings labelled in ``only`` (all when empty), each once, and always the reference every
+    row needs, last. A full ladder at VGA costs hours on a CPU; this benches the rows that answer one
+    question. With ``denoise`` (the backend denoises) any rung ``<level>+denoise@N`` may be asked
+    for, not only the ladder's powers of two."""
     if not only:
         return settings
-    labels = [st.label for st in settings if not st.reference]
-    levels = {st.level for st in settings if not st.reference}
-    extra = [x for x in only if x not in labels and denoise
-             and any(_rung_samples(x, lv) for lv in levels)]
-    settings = settings[:-1] + [rung(settings[0].backend, lv, _rung_samples(x, lv)) for x in extra for lv in levels
-                                if _rung_samples(x, lv)] + settings[-1:]
-    labels += extra
-    unknown = [x for x in only if x not in labels]
+    ref = [st for st in settings if st.reference]
+    by_label = {st.label: st for st in settings if not st.reference}
+    levels = {st.level for st in by_label.values()}
+    for x in only:
+        n = next((n for lv in levels for n in [_rung_samples(x, lv)] if n), None) if denoise else None
+        if x not in by_label and n is not None:
+            by_label[x] = rung(ref[0].backend, x.partition("+")[0], n)
+    unknown = [x for x in only if x not in by_label]
     if unknown:
+        labels = [st.label for st in settings if not st.reference]
         raise ValueError(f"--only: no setting {', '.join(map(repr, unknown))} for backend "
                          f"{settings[0].backend!r}; it has {', '.join(labels)}")
-    return [st for st in settings if st.reference or st.label in only]
+    picked = {by_label[x].label: by_label[x] for x in only}  # "@020" and "@20" are one rung
+    return list(picked.values()) + ref
 
 
 def psnr8(a: np.ndarray, b: np.ndarray) -> float:
@@ -325,15 +329,19 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             refs: dict[int, Reference] = {}
             settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only, plugin.capabilities.denoise)
             settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
-            refining = ladder and plugin.capabilities.denoise
-            while settings:
-                st = settings.pop(0)
-                rows.append(bench_setting(plugin, cls, st, base_opts, spec, picked, shots, refs, repeats, out))
+            counts = (partial(plugin.sample_counts, plugin.options.model_validate(base_opts))
+                      if plugin.sample_counts is not None else None)
+
+            def one(st: Setting) -> Row:
+                r = bench_setting(plugin, cls, st, base_opts, spec, picked, shots, refs, repeats, out)
                 if console:
-                    r = rows[-1]
-                    console.print(f"{name:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
-                if refining and not settings:
-                    settings = [rung(name, lv, n) for lv in levels for n in [finer_rung(rows, name, lv)] if n]
+                    console.print(f"{r.backend:8s} {r.setting:18s} {r.seconds:8.2f} s  PSNR {r.psnr:6.2f} dB  relMSE {r.rel_mse:.2e}")
+                return r
+
+            def finer(done: list[Row]) -> list[Setting]:
+                return [rung(name, lv, n) for lv in levels for n in [finer_rung(done, name, lv, counts)] if n]
+
+            rows += bench_in_turn(settings, one, finer if ladder and plugin.capabilities.denoise else None)
             level = spec.quality.paper_level
             savings += camera_savings(name, rows, level, cams, statistics.median(r.load for r in rows if r.backend == name), spec.cameras.per_arrangement)
             preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
@@ -341,6 +349,19 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
                 savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, shots, preset, repeats))
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
     return rows, savings
+
+
+def bench_in_turn(settings: list[Setting], bench_one: Callable[[Setting], Row],
+                  next_settings: Callable[[list[Row]], list[Setting]] | None = None) -> list[Row]:
+    """Each setting benched in turn; then, while ``next_settings`` of the rows so far names more
+    (the ladder's refinement), those."""
+    rows: list[Row] = []
+    todo = list(settings)
+    while todo:
+        rows.append(bench_one(todo.pop(0)))
+        if not todo and next_settings is not None:
+            todo = next_settings(rows)
+    return rows
 
 
 SHARED_OPTIONS = ("denoise_quality", "denoise_prefilter")  # BackendOptions fields a bench does not vary
@@ -516,25 +537,30 @@ def _drawer(backend, preset: QualityPreset, target, clamp):
 REFINE_RATIO = 1.25  # the ladder is refined until its bracket of the level's error is this narrow in samples
 
 
-def finer_rung(rows: list[Row], backend: str, level: str) -> int | None:
-    """The samples of the next rung between the ladder's last one short of the plain ``level``'s PSNR
-    and its first one reaching it (their geometric mean), while they are more than REFINE_RATIO apart
-    and the rung would be new; None when the bracket is narrow enough or there is none. A backend
-    may take more samples than asked (Mitsuba's stratified sampler takes the next square): a rung
-    whose samples taken equal another's ends the refining."""
+def finer_rung(rows: list[Row], backend: str, level: str, counts: Callable[[int], int] | None = None) -> int | None:
+    """The samples to ask for in the next rung: between the ladder's last rung short of the plain
+    ``level``'s PSNR and its first one reaching it, by the samples they took, the count nearest
+    their geometric mean that the backend renders as a count no rung took yet (``counts``: the
+    samples a render takes when asked for n, as ``BackendPlugin.sample_counts``; Mitsuba's
+    stratified sampler takes the next square). None when the two are within REFINE_RATIO of each
+    other, when there is no such bracket, or when no new count lies between them."""
     plain = next((r for r in rows if r.backend == backend and r.setting == level), None)
-    rungs = [(n, r) for r in rows if r.backend == backend for n in [_rung_samples(r.setting, level)] if n]
-    if plain is None or not rungs:
+    rungs = [r for r in rows if r.backend == backend and _rung_samples(r.setting, level)]
+    if plain is None:
         return None
-    reach = sorted(n for n, r in rungs if r.psnr >= plain.psnr - 1e-9)
-    short = sorted(n for n, r in rungs if r.psnr < plain.psnr - 1e-9 and (not reach or n < reach[0]))
-    if not reach or not short or reach[0] <= short[-1] * REFINE_RATIO:
+    reach = [r.samples for r in rungs if r.psnr >= plain.psnr - 1e-9]
+    short = [r.samples for r in rungs if r.psnr < plain.psnr - 1e-9 and (not reach or r.samples < min(reach))]
+    if not reach or not short or min(reach) <= max(short) * REFINE_RATIO:
         return None
-    taken = [r.samples for _, r in rungs]
-    if len(taken) != len(set(taken)):
+    lo, hi, taken = max(short), min(reach), {r.samples for r in rungs}
+    asked = {_rung_samples(r.setting, level) for r in rungs}  # a renderer that rounds unannounced ends too
+    # by the count taken, the largest asked for it (the count itself where the backend renders it)
+    new = {t: n for n in range(lo + 1, hi) if n not in asked
+           for t in [counts(n) if counts else n] if lo < t < hi and t not in taken}
+    if not new:
         return None
-    n = round((short[-1] * reach[0]) ** 0.5)
-    return n if n not in {m for m, _ in rungs} else None
+    middle = math.sqrt(lo * hi)
+    return new[min(new, key=lambda t: abs(math.log(t / middle)))]
 
 
 def equal_error_speedups(rows: list[Row], level: str = "high") -> dict[str, dict]:

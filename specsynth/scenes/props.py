@@ -33,6 +33,7 @@ BOARD = 0.0008  # metres: a marker board (printed card)
 BOARD_MIDDLE = 5 / 7  # the share of a board's depth (and width) inside its ring of markers (printed._board)
 FLAT_STEP = 0.0003  # each flat item lies this much above the one before: no coplanar faces
 ITEM_GAP = 0.02  # free space kept between placed items
+SEAM_GAP = 0.03  # metres: a stage area beside the seam of two desks keeps this far from it
 # Catalogue items by what they are, from their names.
 ITEM_GROUPS = {
     "drink": r"mug|cup\b|coffee cup|glass\b|beer bottle|wine bottle|yogurt|milk|baby bottle|plastic cup",
@@ -309,11 +310,17 @@ def _floor_extras() -> list[furniture.FurnitureItem]:
             and 0.45 < max(i.size) <= 0.7 and i.elevation == 0 and not i.light and not i.door_or_window]
 
 
-def stage_area(top: Top, rng, island: bool = False) -> tuple[float, float, float, float]:
+def stage_area(top: Top, rng, island: bool = False, seam: bool = False) -> tuple[float, float, float, float]:
     """The free rectangle for the dataset's objects: centred along the top, towards its front; on an
-    island (a top worked at from all sides) in its middle, with a row of things in front of it too."""
+    island (a top worked at from all sides) in its middle, with a row of things in front of it too;
+    on an island of two desks back to back (``seam`` along v = 0) beside the seam, never across it
+    (a desk's top may stop short of its box: the crack would be under the objects)."""
     w = min(top.width - 0.1, max(0.45, float(rng.uniform(0.35, 0.5)) * top.width))
-    if island:
+    if seam:
+        half = top.depth / 2
+        d = min(half - 0.22, max(0.32, float(rng.uniform(0.5, 0.7)) * half))
+        v = (1 if rng.random() < 0.5 else -1) * (SEAM_GAP + d / 2)
+    elif island:
         d = min(top.depth - 0.5, max(0.32, float(rng.uniform(0.4, 0.55)) * top.depth))
         v = float(rng.uniform(-0.1, 0.1)) * (top.depth - d)
     else:
@@ -324,12 +331,13 @@ def stage_area(top: Top, rng, island: bool = False) -> tuple[float, float, float
 
 
 def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.35,
-          island: bool = False) -> Dressing:
+          island: bool = False, seam: bool = False) -> Dressing:
     """Clutter on one work surface around a free stage area. ``density`` scales every count (0:
     nothing); ``board`` is the chance of a marker board lying under the stage area (LM-O's test
-    photographs have one under every object); an ``island`` has its stage area in the middle and
-    low things in front of it as well, so that a camera from any side sees a crowded top beyond."""
-    stage = stage_area(top, rng, island)
+    photographs have one under every object); an ``island`` has its stage area in the middle (beside
+    its ``seam``, if two desks make it) and low things in front of it as well, so that a camera from
+    any side sees a crowded top beyond."""
+    stage = stage_area(top, rng, island or seam, seam)
     if density <= 0:
         return Dressing(stage=stage)
     layout = _Layout(top, rng, stage)
@@ -475,10 +483,10 @@ def _sides(dr: _Dresser, stage, density: float) -> None:
 
 
 def _front_row(dr: _Dresser, stage, density: float) -> None:
-    """In front of an island's stage area: only low things (a keyboard, mugs, phones, tools, flat books),
-    which a camera on that side looks over rather than at."""
+    """Straight in front of an island's stage area: only low things (a keyboard, mugs, phones, tools,
+    flat books), which a camera on that side looks over rather than at."""
     top, rng, lay = dr.top, dr.rng, dr.layout
-    zone = (-top.width / 2, -top.depth / 2, top.width / 2, stage[1])
+    zone = (stage[0], -top.depth / 2, stage[2], stage[1])  # the corners are the sides' (_sides)
     if rng.random() < 0.5 * density:
         spot = lay.place(0.46, 0.16, zone)
         if spot is not None:

@@ -170,10 +170,18 @@ def _island(rng, worktops: list[furniture.FurnitureItem], W: float, D: float) ->
         top = (x, y, w, depth)
         if not pair:
             return [Placed(item, x, y, 0.0, (x - w / 2, y - d / 2, x + w / 2, y + d / 2), middle=True, island=top)]
-        # Back to back: the south desk faces -y (yaw 0), the north one +y (yaw 180), their backs meeting at y.
+        # Back to back, so that each desk's front (where its worker sits) faces out of the island.
         return [Placed(item, x, y + s * d / 2, yaw, (x - w / 2, y + min(0, s) * d, x + w / 2, y + max(0, s) * d),
                        middle=True, island=top) for s, yaw in ((-1, 0.0), (1, 180.0))]
     return []
+
+
+def island_keep_out(placed: list[Placed]) -> list[Placed]:
+    """The island's pieces grown so that anything kept clear of them (``_overlaps`` adds GAP) stands
+    ISLAND_CLEAR away: the floor round an island stays free, for the cameras that stand there."""
+    c = ISLAND_CLEAR - GAP
+    return [replace(p, footprint=(p.footprint[0] - c, p.footprint[1] - c, p.footprint[2] + c, p.footprint[3] + c))
+            for p in placed if p.island is not None]
 
 
 def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
@@ -181,10 +189,7 @@ def furnish(rng, items, W, D, window, n_wall: int, n_middle: int,
     placed: list[Placed] = []
     if worktops and island > 0 and rng.random() < island:
         placed += _island(rng, worktops, W, D)
-    # The floor round an island stays free (the cameras stand there): later pieces keep out of it.
-    c = ISLAND_CLEAR - GAP
-    keep_out = [replace(p, footprint=(p.footprint[0] - c, p.footprint[1] - c, p.footprint[2] + c, p.footprint[3] + c))
-                for p in placed]
+    keep_out = island_keep_out(placed)
     if worktops and not placed:
         first = _worktop(rng, worktops, W, D, window)
         if first is not None:
@@ -247,7 +252,8 @@ def dress_worktops(rng, placed: list[Placed], cache: Path, density: float, board
         yaw = p.yaw if not p.middle else p.yaw + 180.0 * int(rng.integers(2))
         x, y, w, depth = p.island or (p.x, p.y, p.item.size[0], p.item.size[1])
         top = props.Top(x, y, w, depth, yaw, float(open_top(p.item)))
-        d = props.dress(top, rng, cache, f"desk{k:02d}", density, board=boards, island=p.island is not None)
+        pair = p.island is not None and sum(q.island == p.island for q in placed) == 2
+        d = props.dress(top, rng, cache, f"desk{k:02d}", density, board=boards, island=p.island is not None, seam=pair)
         if p.island is not None:
             dressed.add(p.island)
         meshes += d.meshes
@@ -657,7 +663,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     small = clutter(rng, placed, furniture.small_items(), params.clutter)
     meshes += small
     credits += [furniture.find(m.source.furniture).credit for m in small]
-    for k, (item, x, y, yaw) in enumerate(props.floor_items(rng, _floor_spots(rng, W, D, placed, 4), params.density)):
+    for k, (item, x, y, yaw) in enumerate(props.floor_items(rng, _floor_spots(rng, W, D, placed + island_keep_out(placed), 4), params.density)):
         meshes.append(SceneMesh(name=f"floor_item_{k:02d}", source={"furniture": item.id},
                                 transform=Transform(translation=(x, y, 0.001), rotation=(0.0, 0.0, yaw))))
         credits.append(item.credit)
