@@ -663,7 +663,8 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     small = clutter(rng, placed, furniture.small_items(), params.clutter)
     meshes += small
     credits += [furniture.find(m.source.furniture).credit for m in small]
-    for k, (item, x, y, yaw) in enumerate(props.floor_items(rng, _floor_spots(rng, W, D, placed + island_keep_out(placed), 4), params.density)):
+    spots = _floor_spots(rng, W, D, placed + island_keep_out(placed), 4)
+    for k, (item, x, y, yaw) in enumerate(props.floor_items(rng, spots, params.density)):
         meshes.append(SceneMesh(name=f"floor_item_{k:02d}", source={"furniture": item.id},
                                 transform=Transform(translation=(x, y, 0.001), rotation=(0.0, 0.0, yaw))))
         credits.append(item.credit)
