@@ -8,6 +8,7 @@ import math
 import os
 import subprocess
 import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -124,9 +125,11 @@ def test_the_ladder_is_refined_by_the_samples_a_rounding_backend_takes():
     """Mitsuba's stratified sampler renders the next square: its whole ladder (1, 2, 4, ... asked;
     1, 4, 4, 9, 16, 36 taken) is refined at a square between the bracket's counts taken, asked as
     itself, and not at all when no square lies between them."""
+    from specsynth.plugins import backend_plugin
     from specsynth.run.bench import finer_rung
 
-    square = lambda n: math.isqrt(n - 1) ** 2 + 2 * math.isqrt(n - 1) + 1  # noqa: E731 - the next square
+    mitsuba = backend_plugin("mitsuba")
+    square = partial(mitsuba.sample_counts, mitsuba.options.model_validate({"name": "mitsuba"}))  # the next square
     ladder = {1: 20.0, 2: 24.0, 4: 24.0, 8: 27.0, 16: 30.6, 32: 31.8}
     taken = {n: square(n) for n in ladder}
     assert [taken[n] for n in ladder] == [1, 4, 4, 9, 16, 36]

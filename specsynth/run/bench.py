@@ -24,6 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from ..model.colour import linear_to_srgb8
 from ..model.error import extrapolated_rel_mse, rel_mse, split_rel_mse
+from ..model.error import taken as taken_by
 from ..model.records import ArrangementRecord, ViewRecord
 from ..plan.compiler import JobGraph
 from ..plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_backend_plugins
@@ -169,9 +170,9 @@ def pick_settings(settings: list[Setting], only: tuple[str, ...], denoise: bool 
     by_label = {st.label: st for st in settings if not st.reference}
     levels = {st.level for st in by_label.values()}
     for x in only:
-        n = next((n for lv in levels for n in [_rung_samples(x, lv)] if n), None) if denoise else None
-        if x not in by_label and n is not None:
-            by_label[x] = rung(ref[0].backend, x.partition("+")[0], n)
+        for lv in levels if denoise and x not in by_label else ():
+            if n := _rung_samples(x, lv):
+                by_label[x] = rung(ref[0].backend, lv, n)
     unknown = [x for x in only if x not in by_label]
     if unknown:
         labels = [st.label for st in settings if not st.reference]
@@ -556,7 +557,7 @@ def finer_rung(rows: list[Row], backend: str, level: str, counts: Callable[[int]
     asked = {_rung_samples(r.setting, level) for r in rungs}  # a renderer that rounds unannounced ends too
     # by the count taken, the largest asked for it (the count itself where the backend renders it)
     new = {t: n for n in range(lo + 1, hi) if n not in asked
-           for t in [counts(n) if counts else n] if lo < t < hi and t not in taken}
+           for t in [taken_by(counts, n)] if lo < t < hi and t not in taken}
     if not new:
         return None
     middle = math.sqrt(lo * hi)
