@@ -34,6 +34,7 @@ BOARD_MIDDLE = 5 / 7  # the share of a board's depth (and width) inside its ring
 FLAT_STEP = 0.0003  # each flat item lies this much above the one before: no coplanar faces
 ITEM_GAP = 0.02  # free space kept between placed items
 SEAM_GAP = 0.03  # metres: a stage area beside the seam of two desks keeps this far from it
+DESK_AREA = 1.3  # square metres: a typical desk's top (the catalogue's desks: 0.7-1.6), which the counts are for
 # Catalogue items by what they are, from their names.
 ITEM_GROUPS = {
     "drink": r"mug|cup\b|coffee cup|glass\b|beer bottle|wine bottle|yogurt|milk|baby bottle|plastic cup",
@@ -333,13 +334,15 @@ def stage_area(top: Top, rng, island: bool = False, seam: bool = False) -> tuple
 def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: float = 0.35,
           island: bool = False, seam: bool = False) -> Dressing:
     """Clutter on one work surface around a free stage area. ``density`` scales every count (0:
-    nothing); ``board`` is the chance of a marker board lying under the stage area (LM-O's test
+    nothing), which is for a typical desk's top: a bigger top (a bench, two desks pushed together)
+    carries more in proportion to its area; ``board`` is the chance of a marker board lying under the stage area (LM-O's test
     photographs have one under every object); an ``island`` has its stage area in the middle (beside
     its ``seam``, if two desks make it) and low things in front of it as well, so that a camera from
     any side sees a crowded top beyond."""
     stage = stage_area(top, rng, island or seam, seam)
     if density <= 0:
         return Dressing(stage=stage)
+    density *= max(1.0, top.width * top.depth / DESK_AREA)
     layout = _Layout(top, rng, stage)
     dr = _Dresser(top, rng, Path(cache), prefix, layout)
     dr.out.stage = stage

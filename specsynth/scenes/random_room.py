@@ -34,8 +34,9 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # desks; a pinboard with pinned sheets above a desk against a wall. 11: an open shelf unit of binders and books at
 # the back of a dressed top. 12: pinboards hang lower (where a camera looking at the desk sees the wall), with
 # more sheets; a poster covers the marker board's middle. 13: the shelf unit stands clear of the pinboard.
-# 14: islands (room.islands): the work surface in the middle of the room, dressed on all sides.
-GENERATOR_VERSION = 14
+# 14: islands (room.islands): the work surface in the middle of the room, dressed on all sides. 15: a top
+# bigger than a typical desk's (a bench, an island of two desks) is dressed in proportion to its area.
+GENERATOR_VERSION = 15
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
