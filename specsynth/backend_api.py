@@ -49,3 +49,8 @@ class RenderBackend(Protocol):
         """Render one view. Same inputs and seed -> identical pixels on the same machine."""
 
     def close(self) -> None: ...
+
+    # Optional: a backend that denoises and returns its denoiser's guides (RenderResult.guides) may
+    # also offer ``denoise(linear, guides) -> linear``, which denoises an image as a render of its
+    # own would be: under ``quality.control: error`` the core then denoises the samples of all of an
+    # image's renders together (specsynth.model.error) instead of the last pair alone.

@@ -59,7 +59,20 @@ def _broken_variants():
             r = super().render(camera, quality, seed, clamp=clamp)
             return RenderResult(rgb=r.rgb[:, :-1].copy(), stats=r.stats)
 
+    class GuidesWithoutDenoise(flat):  # hands the core denoiser guides it cannot use
+        def render(self, camera, quality, seed, *, clamp=None):
+            r = super().render(camera, quality, seed, clamp=clamp)
+            lin = r.rgb.astype(np.float32) / 255
+            return RenderResult(rgb=r.rgb, linear=lin, stats=r.stats, noisy=lin,
+                                guides=np.concatenate([lin, np.zeros_like(lin)], axis=-1))
+
+    class NegativeDenoise(GuidesWithoutDenoise):
+        def denoise(self, linear, guides):
+            return linear - 1.0
+
     return [
+        pytest.param(GuidesWithoutDenoise, "render_shape", id="guides-without-denoise"),
+        pytest.param(NegativeDenoise, "render_shape", id="negative-denoise"),
         pytest.param(flat, "depth_of_field", id="claims-depth-of-field"),  # declared, but a pinhole
         pytest.param(flat, "motion_blur", id="claims-motion-blur"),  # declared, but a still camera
         pytest.param(UpsideDown, "silhouettes", id="upside-down"),
@@ -77,6 +90,26 @@ def test_suite_catches_broken_backend(tmp_path, cls, check):
     try:
         with pytest.raises(ConformanceError):
             CHECKS[check](context)
+    finally:
+        context.close()
+
+
+def test_a_backend_with_guides_and_its_denoise_passes(tmp_path):
+    flat = load_backend("flat")
+
+    class Guided(flat):
+        def render(self, camera, quality, seed, *, clamp=None):
+            r = super().render(camera, quality, seed, clamp=clamp)
+            lin = r.rgb.astype(np.float32) / 255
+            return RenderResult(rgb=r.rgb, linear=lin, stats=r.stats, noisy=lin,
+                                guides=np.concatenate([lin, np.zeros_like(lin)], axis=-1))
+
+        def denoise(self, linear, guides):
+            return np.clip(linear, 0, None)
+
+    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=Guided)
+    try:
+        CHECKS["render_shape"](context)
     finally:
         context.close()
 

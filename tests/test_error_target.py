@@ -198,6 +198,53 @@ def test_a_denoised_image_lands_on_the_target_bias_included(sigma):
     assert np.abs(done.result.linear - mu).mean() < np.abs(r(2, 99).linear - mu).mean()
 
 
+class GuidedRenderer(NoisyRenderer):
+    """Renders denoised by the renderer, with the image before its denoiser and the guides it used
+    (here: constant albedo and normal, which the stand-in denoiser ignores): the core can denoise
+    several renders' samples together with ``blur``."""
+
+    def __call__(self, samples: int, i: int) -> RenderResult:
+        res = super().__call__(samples, i)
+        guides = np.concatenate([np.full_like(res.linear, 0.5), np.zeros_like(res.linear)], axis=-1)
+        return RenderResult(res.rgb, blur(res.linear), res.stats, noisy=res.linear, guides=guides)
+
+
+def _guided_denoiser(calls: list):
+    def denoise(linear: np.ndarray, guides: np.ndarray) -> np.ndarray:
+        assert linear.dtype == np.float32 and guides.shape == linear.shape[:2] + (6,)
+        calls.append(guides)
+        return blur(linear)
+    return denoise
+
+
+@pytest.mark.parametrize("sigma", [0.3, 3.0])
+def test_denoising_every_sample_spent_lands_on_the_target_for_fewer_samples(sigma):
+    """With the core's denoiser on the accumulated halves, the denoised image is made of every
+    sample spent: its true error is within 10 % of the paper preset's, for fewer samples than
+    denoising only the last pair (whose earlier pairs are dropped), and its record says so."""
+    mu = scene(4)
+    mu[:, 60:] *= 0.3
+    paper = 225
+    truth_paper = float(np.mean((sigma * mu) ** 2 / paper / (mu**2 + 1e-2)))
+    calls: list = []
+    done = render_to_target(GuidedRenderer(mu, sigma, 3), ErrorTarget(paper, 2, 4 * paper), linear_to_srgb8,
+                            denoise=_guided_denoiser(calls))
+    last_pair = render_to_target(GuidedRenderer(mu, sigma, 3), ErrorTarget(paper, 2, 4 * paper), linear_to_srgb8)
+    truth = rel_mse(done.result.linear, mu)
+    assert done.denoised and done.image_samples == done.samples and calls
+    assert np.allclose(calls[-1][..., :3], 0.5) and np.allclose(calls[-1][..., 3:], 0.0)  # the guides' mean
+    assert abs(done.error - truth) <= 3 * done.error_se + 0.02 * truth
+    assert truth <= 1.1 * truth_paper
+    assert done.samples < last_pair.samples < paper, (done.stats(), last_pair.stats())
+
+
+def test_renders_without_guides_keep_the_last_pair_way_with_a_denoiser_given():
+    mu = scene(5)
+    done = render_to_target(DenoisingRenderer(mu, 1.0, 3), ErrorTarget(225, 2, 900), linear_to_srgb8,
+                            denoise=_guided_denoiser(calls := []))
+    assert not calls and done.denoised and done.image_samples < done.samples
+
+
 def test_render_to_target_keeps_to_its_budget():
     r = NoisyRenderer(scene(3), 50.0, 5)  # far too noisy for its budget
     done = render_to_target(r, ErrorTarget(paper_samples=100, start_samples=2, max_samples=12), linear_to_srgb8)
@@ -211,23 +258,30 @@ def test_render_to_target_is_deterministic():
     assert runs[0].stats() == runs[1].stats()
 
 
+def box3(linear: np.ndarray, guides: np.ndarray | None = None) -> np.ndarray:
+    """A 3 x 3 box filter over the whole image (any size), as a denoiser that ignores its guides."""
+    from scipy.ndimage import uniform_filter
+
+    return uniform_filter(linear, size=(3, 3, 1), mode="nearest")
+
+
 class SmallDenoiser(NoisyRenderer):
-    """Renders denoised by a 3 x 3 box filter over the whole image (any size)."""
+    """Renders denoised by a 3 x 3 box filter, with their guides (which the core may use)."""
 
     def __call__(self, samples: int, i: int) -> RenderResult:
-        from scipy.ndimage import uniform_filter
-
         res = super().__call__(samples, i)
-        return RenderResult(res.rgb, uniform_filter(res.linear, size=(3, 3, 1), mode="nearest"), res.stats, noisy=res.linear)
+        guides = np.concatenate([np.full_like(res.linear, 0.5), np.zeros_like(res.linear)], axis=-1)
+        return RenderResult(res.rgb, box3(res.linear), res.stats, noisy=res.linear, guides=guides)
 
 
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31), sigma=st.floats(0.01, 10.0), start=st.integers(1, 8), paper=st.integers(1, 400),
-       extra=st.integers(0, 600), denoised=st.booleans())
+       extra=st.integers(0, 600), denoised=st.sampled_from([False, "last pair", "halves"]))
 def test_render_to_target_ends_within_its_budget_in_pairs_and_is_deterministic(seed, sigma, start, paper, extra, denoised):
     """Whatever the noise, the paper's samples and the budget: the loop ends, never spends more
     than max_samples, renders whole pairs whose seeds are 0, 1, 2, ..., reports what it spent, and
-    a deterministic renderer gives the same image and numbers twice."""
+    a deterministic renderer gives the same image and numbers twice; the backend denoising each
+    pair or the core denoising the halves of every sample spent."""
     mu = scene(seed)[::6, ::6]
     target = ErrorTarget(paper_samples=paper, start_samples=start, max_samples=2 * start + extra)
     kind = SmallDenoiser if denoised else NoisyRenderer
@@ -235,8 +289,11 @@ def test_render_to_target_ends_within_its_budget_in_pairs_and_is_deterministic(s
     for _ in range(2):
         r = kind(mu, sigma, seed)
         seen = []
-        done = render_to_target(lambda n, i: (seen.append(i), r(n, i))[1], target, linear_to_srgb8)
+        done = render_to_target(lambda n, i: (seen.append(i), r(n, i))[1], target, linear_to_srgb8,
+                                box3 if denoised == "halves" else None)
         runs.append(done)
+        if denoised == "halves" and done.denoised:
+            assert done.image_samples == done.samples
         assert done.samples == sum(r.calls) <= target.max_samples
         assert done.renders == len(r.calls) and done.renders % 2 == 0 and seen == list(range(done.renders))
         assert all(r.calls[k] == r.calls[k + 1] >= 1 for k in range(0, len(r.calls), 2))

@@ -33,7 +33,8 @@ EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not d
 # builds under quality.control: error (plan.compiler), so their cached renders are made again.
 # 2: the sample counts the backend takes, the record of the image kept, stereo eyes as one.
 # 3: the target from the sampler's convergence rate measured on the image (not 1 / samples).
-REVISION = 3
+# 4: with a backend's denoise and guides, the halves of every sample spent denoised together.
+REVISION = 4
 # The fastest fall of one render's variance with its samples that a target assumes: measured
 # rates above it are noise or a few-sample start (a stratified sampler is at most ~N^-1.5 on
 # smooth pixels and near 1 on the many-bounce paths that make most of a room's noise).
@@ -154,8 +155,9 @@ def per_render(counts: Callable[[int], int] | None, n: int, left: int) -> int:
 
 @dataclass
 class TargetedResult:
-    # The image kept: the mean of every render's raw samples, or the last pair denoised and
-    # averaged; its stats hold what the backend reported alike for every render it is made of.
+    # The image kept: the mean of every render's raw samples, or its two halves each denoised by
+    # the core and averaged, or the last pair as the backend denoised it, averaged; its stats hold
+    # what the backend reported alike for every render it is made of.
     result: RenderResult
     samples: int  # samples per pixel spent, over all renders
     renders: int
@@ -164,8 +166,8 @@ class TargetedResult:
     # (the pair's samples, its denoised mean's upper bound) per pair rendered for the denoised way
     history: list[tuple[int, float]] = field(default_factory=list)
     error_se: float = 0.0  # the estimate's standard error
-    image_samples: int = 0  # samples per pixel in the result: all spent (raw), the last pair's (denoised)
-    denoised: bool = False  # the result is the last pair denoised by the backend
+    image_samples: int = 0  # samples per pixel in the result: all spent, or the last pair's (denoised by the backend)
+    denoised: bool = False  # the result is denoised (its halves by the core, or the last pair by the backend)
     # α in "one render's variance ∝ samples^-α", measured on this image; None: not measured (the
     # budget ended first, or no noise), the target then assumed α = 1
     rate: float | None = None
@@ -210,18 +212,33 @@ def sample_step(n: int) -> int:
     return next(c for c in (k, 3 * k // 2, 2 * k) if c >= n and (c == k or c % 3 == 0 or c == 2 * k))
 
 
+Denoise = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (linear, guides) -> denoised linear
+
+
 class _Raw:
-    """Raw renders accumulated into two independent sample-weighted halves (even and odd renders)."""
+    """Raw renders accumulated into two independent sample-weighted halves (even and odd renders),
+    with their denoiser guides (RenderResult.guides) where every render has them."""
 
     def __init__(self) -> None:
         self.sums, self.counts = [0.0, 0.0], [0, 0]
+        self.guides: list = [0.0, 0.0]
 
-    def add(self, g: int, linear: np.ndarray, samples: int) -> None:
+    def add(self, g: int, linear: np.ndarray, samples: int, guides: np.ndarray | None = None) -> None:
         self.sums[g] = self.sums[g] + np.asarray(linear, np.float64) * samples
         self.counts[g] += samples
+        self.guides[g] = None if guides is None or self.guides[g] is None else self.guides[g] + guides * samples
 
     def halves(self) -> tuple[np.ndarray, np.ndarray]:
         return self.sums[0] / self.counts[0], self.sums[1] / self.counts[1]
+
+    def has_guides(self) -> bool:
+        """Every render of both halves came with guides."""
+        return all(isinstance(g, np.ndarray) for g in self.guides)
+
+    def guide_halves(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self.has_guides():
+            return None
+        return tuple((self.guides[g] / self.counts[g]).astype(np.float32) for g in (0, 1))
 
 
 @dataclass(frozen=True)
@@ -244,8 +261,23 @@ def _candidate(image: np.ndarray, error_map: np.ndarray, paper_map: np.ndarray, 
     return _Candidate(image, error, se, error + confidence * mean_and_error(error_map - paper_map)[1], samples, denoised)
 
 
+def _denoised_halves(raw: _Raw, pair: list[RenderResult], took: list[int], denoise: Denoise | None):
+    """(two independent denoised images, the raw images they were denoised from, their samples
+    together) or None: the accumulated halves denoised by ``denoise`` with their accumulated guides
+    (every sample spent is in the image), else the last pair as the backend denoised it."""
+    guides = raw.guide_halves() if denoise is not None else None
+    if guides is not None:
+        a, b = raw.halves()
+        d_a, d_b = (denoise(h.astype(np.float32), g) for h, g in ((a, guides[0]), (b, guides[1])))
+        return d_a, d_b, a, b, sum(raw.counts)
+    if pair[0].noisy is not None:
+        return pair[0].linear, pair[1].linear, pair[0].noisy, pair[1].noisy, sum(took)
+    return None
+
+
 def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], pairs: list[tuple[int, np.ndarray]],
-                paper_samples: int, confidence: float) -> tuple[float, float | None, list[_Candidate]]:
+                paper_samples: int, confidence: float, denoise: Denoise | None = None
+                ) -> tuple[float, float | None, list[_Candidate]]:
     """(the paper preset's estimated error at this view, the convergence rate it took or None when
     not yet measured, [the raw candidate, the denoised one when the backend denoises]). One
     normaliser for all of them, the denoised mean where there is one: the raw mean of a few
@@ -254,15 +286,15 @@ def _candidates(raw: _Raw, pair: list[RenderResult], took: list[int], pairs: lis
     samples per render and the square of its two raw renders' difference."""
     a, b = raw.halves()
     raw_image = (a + b) / 2
-    den_image = None if pair[0].noisy is None else (np.asarray(pair[0].linear, np.float64) + pair[1].linear) / 2
+    den = _denoised_halves(raw, pair, took, denoise)
+    den_image = None if den is None else (np.asarray(den[0], np.float64) + den[1]) / 2
     norm2 = (raw_image if den_image is None else den_image) ** 2 + EPS
     raw_map = ((a - b) ** 2 / 4 / norm2).mean(axis=-1)
     paper_map, rate = _paper_map(pairs, norm2, paper_samples)
     out = [_candidate(raw_image, raw_map, paper_map, confidence, sum(raw.counts), False)]
-    if den_image is not None:
-        (x, y) = pair
-        den_map = denoised_rel_mse_map(x.linear, y.linear, x.noisy, y.noisy, norm=den_image).mean(axis=-1)
-        out.append(_candidate(den_image, den_map, paper_map, confidence, sum(took), True))
+    if den is not None:
+        den_map = denoised_rel_mse_map(*den[:4], norm=den_image).mean(axis=-1)
+        out.append(_candidate(den_image, den_map, paper_map, confidence, den[4], True))
     return float(paper_map.mean()), rate, out
 
 
@@ -291,7 +323,7 @@ def _render_pair(render: Callable[[int, int], RenderResult], n: int, first: int,
         if took[-1] > n:  # the budget is planned with the counts the renderer says it takes
             raise RuntimeError(f"a render asked for {n} samples per pixel took {took[-1]}: the backend's plugin must "
                                "say how it rounds sample counts (BackendPlugin.sample_counts)")
-        raw.add(g, res.noisy if res.noisy is not None else res.linear, took[-1])
+        raw.add(g, res.noisy if res.noisy is not None else res.linear, took[-1], res.guides)
         for k, v in (res.stats.get("phases") or {}).items():  # the image's time is every render's
             phases[k] = phases.get(k, 0.0) + v
         pair.append(res)
@@ -310,8 +342,13 @@ def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[in
     raw_need = max(1, max(image.raw_need() for image in images) - spent)
     histories, papers = [image.history for image in images], [image.paper for image in images]
     den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
-    den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
-    n_next = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
+    if den_need is not None and all(image.accumulated() for image in images):
+        # Both ways are made of every sample spent: the next pair tops up to the nearer one.
+        n_next = max(1, math.ceil(min(raw_need, max(1, den_need - spent)) / 2))
+        den_step = True
+    else:
+        den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
+        n_next = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
     if any(image.unmeasured() for image in images):
         n_next = max(n_next, 2 * n)
     return target.per_render(sample_step(n_next), target.max_samples - spent), den_step
@@ -321,10 +358,11 @@ class _Progress:
     """One image of a group on its way to its target: its raw halves, what its renders reported,
     and the last step's candidates."""
 
-    def __init__(self, render: Callable[[int, int], RenderResult]) -> None:
+    def __init__(self, render: Callable[[int, int], RenderResult], denoise: Denoise | None = None) -> None:
         self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
         self.spent, self.paper, self.rate, self.candidates = 0, 0.0, None, []
         self.pairs: list[tuple[int, np.ndarray]] = []  # (samples per render, the raw renders' squared difference)
+        self.denoise = denoise
 
     def step(self, n: int, first: int, target: ErrorTarget, den_step: bool) -> None:
         pair, took = _render_pair(self.render, n, first, self.raw, self.phases)
@@ -333,9 +371,14 @@ class _Progress:
         a, b = (np.asarray(res.noisy if res.noisy is not None else res.linear, np.float64) for res in pair)
         self.pairs.append((took[0], ((a - b) ** 2).astype(np.float32)))
         self.paper, self.rate, self.candidates = _candidates(self.raw, pair, took, self.pairs, target.paper_samples,
-                                                             target.confidence)
-        if len(self.candidates) > 1 and den_step:  # a pair rendered for the denoised way, not a raw top-up
-            self.history.append((sum(took), self.candidates[1].upper))
+                                                             target.confidence, self.denoise)
+        # The denoised way's history: its pairs alone, or every step when it denoises all samples spent.
+        if len(self.candidates) > 1 and (den_step or self.accumulated()):
+            self.history.append((self.candidates[1].samples, self.candidates[1].upper))
+
+    def accumulated(self) -> bool:
+        """Its denoised candidate is made of every sample spent (the halves denoised by the core)."""
+        return self.denoise is not None and self.raw.has_guides()
 
     def unmeasured(self) -> bool:
         """Its target still assumes a rate: fewer than two sample counts rendered, and noise."""
@@ -358,14 +401,14 @@ class _Progress:
         # The kept image's record: what the backend reported alike for every render it is made of
         # (a setting), not the last render's count, seed or time (Mitsuba's spp of the last pair
         # stood beside the samples of all of them); the time is every render's.
-        made_of = self.reported[-2:] if best.denoised else self.reported
+        made_of = self.reported[-2:] if best.denoised and not self.accumulated() else self.reported
         res = RenderResult(rgb=encode(linear), linear=linear, stats={**shared_stats(made_of), "phases": self.phases})
         return TargetedResult(res, self.spent, renders, best.error, self.paper, self.history, best.se, best.samples,
                               best.denoised, self.rate)
 
 
 def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTarget,
-                     encode: Callable[[np.ndarray], np.ndarray]) -> TargetedResult:
+                     encode: Callable[[np.ndarray], np.ndarray], denoise: Denoise | None = None) -> TargetedResult:
     """Render pairs of independent images (``render(samples, i)``: the i-th render's seed is the
     caller's) until the estimated error of the image reaches the paper preset's estimated error
     at this view (with ``target.confidence`` standard errors to spare), or the budget is spent.
@@ -376,12 +419,17 @@ def render_to_target(render: Callable[[int, int], RenderResult], target: ErrorTa
     the last pair's estimate asks for, and that pair's mean is the other candidate; its error
     estimate needs nothing of the denoiser but that it treats the two renders alike and
     independently. The image is the candidate with the lower bound; the next step is the
-    cheaper way to the target (``_next_step``)."""
-    return render_group_to_target([render], target, encode)[0]
+    cheaper way to the target (``_next_step``).
+
+    With ``denoise`` and renders that carry their denoiser's guides, the denoised candidate is
+    instead the two accumulated halves, each denoised with its accumulated guides: no sample is
+    spent on a pair that is then dropped, and each step tops up the halves."""
+    return render_group_to_target([render], target, encode, denoise)[0]
 
 
 def render_group_to_target(renders: list[Callable[[int, int], RenderResult]], target: ErrorTarget,
-                           encode: Callable[[np.ndarray], np.ndarray]) -> list[TargetedResult]:
+                           encode: Callable[[np.ndarray], np.ndarray], denoise: Denoise | None = None
+                           ) -> list[TargetedResult]:
     """Several images of one view (a stereo rig's eyes) rendered to their targets as one
     (``render_to_target`` for one image): each step renders a pair of every image with the same
     samples and render indices, the next step is the one the image furthest from its target
@@ -389,7 +437,7 @@ def render_group_to_target(renders: list[Callable[[int, int], RenderResult]], ta
     keeps the same kind of candidate (raw mean or denoised pair: the one whose image furthest
     from its target is nearest), so the images of a pair carry the same samples and treatment
     and only their own content's error tells them apart."""
-    images = [_Progress(render) for render in renders]
+    images = [_Progress(render, denoise) for render in renders]
     n, count, den_step = target.per_render(target.start_samples, target.max_samples), 0, True
     while True:
         for image in images:

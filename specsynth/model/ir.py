@@ -209,3 +209,6 @@ class RenderResult:
     # HxWx3 float32 linear radiance before the denoiser, when the backend denoised ``linear``: what
     # the error estimates of specsynth.model.error need from a denoising backend.
     noisy: np.ndarray | None = None
+    # HxWx6 float32, the denoiser's guides beside ``noisy`` (albedo, then normal): with them the
+    # core denoises several renders' samples together (RenderBackend.denoise, quality.control: error).
+    guides: np.ndarray | None = None

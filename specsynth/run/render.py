@@ -341,7 +341,10 @@ def draw_to_target(backend, cams: Sequence[CameraIR], preset, seed: int, target:
         return one
 
     t0 = time.perf_counter()
-    done = render_group_to_target([drawer(k) for k in range(len(cams))], target, linear_to_srgb8)
+    # A backend that can denoise an image of its own kind (RenderBackend.denoise) gets every sample
+    # spent denoised together, not only the last pair.
+    done = render_group_to_target([drawer(k) for k in range(len(cams))], target, linear_to_srgb8,
+                                  getattr(backend, "denoise", None))
     shared = (time.perf_counter() - t0 - sum(spent)) / len(cams)
     return [(replace(d.result, stats={**d.result.stats, **d.stats()}), spent[k] + shared) for k, d in enumerate(done)]
 

@@ -347,6 +347,15 @@ def check_render_shape(ctx: ConformanceContext) -> None:
         _require(lin.shape == (HEIGHT, WIDTH, 3), ctx.name, f"linear shape is {lin.shape}, expected {(HEIGHT, WIDTH, 3)}")
         _require(np.issubdtype(lin.dtype, np.floating), ctx.name, f"linear dtype is {lin.dtype}, expected float")
         check_finite(lin, f"backend {ctx.name!r}: linear")
+    if res.guides is not None:  # the denoiser's guides: the core may denoise several renders together
+        _require(res.noisy is not None and res.guides.shape == (HEIGHT, WIDTH, 6), ctx.name,
+                 "guides need the render before the denoiser (noisy) and are HxWx6: albedo, then normal")
+        denoise = getattr(ctx.backend, "denoise", None)
+        _require(callable(denoise), ctx.name, "a backend that returns guides must offer denoise(linear, guides)")
+        out = denoise(res.noisy, res.guides)
+        _require(out.shape == (HEIGHT, WIDTH, 3) and float(np.min(out)) >= 0.0, ctx.name,
+                 "denoise() must return an HxWx3 image, never negative")
+        check_finite(out, f"backend {ctx.name!r}: denoise()")
 
 
 def check_determinism(ctx: ConformanceContext) -> None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from specsynth.model.colour import check_finite, linear_to_srgb8
 from specsynth.model.conventions import c2w_during_exposure, opencv_to_blender_c2w
+from specsynth.model.denoiser import oidn
 from specsynth.model.ir import CameraIR, RenderResult, RenderScene
 from specsynth.processes import captured_fd
 from specsynth.spec.models import QualityPreset
@@ -63,7 +64,8 @@ _KEEP_PREFIX = "__specsynth"
 
 def _read_exr_rgb(path: Path) -> dict[str, np.ndarray]:
     """The EXR's colour passes as HxWx3 arrays: {"Combined": ...} and, in a multilayer file written
-    while denoising, {"Noisy Image": ...} (the render before the denoiser) as well."""
+    while denoising, {"Noisy Image": ...} (the render before the denoiser) and the denoiser's
+    guides {"Denoising Albedo": ..., "Denoising Normal": ...} as well."""
     import OpenEXR
 
     out = {}
@@ -74,10 +76,13 @@ def _read_exr_rgb(path: Path) -> dict[str, np.ndarray]:
                 out["Combined"] = np.asarray(ch["RGB" if "RGB" in ch else "RGBA"].pixels, dtype=np.float32)
             elif all(c in ch for c in "RGB"):
                 out["Combined"] = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-            for name, c in ch.items():  # multilayer: "ViewLayer.<pass>", RGBA in one channel entry
+            for name, c in ch.items():  # multilayer: "ViewLayer.<pass>", RGB(A) in one channel entry
                 layer = name.split(".", 1)[-1]
-                if layer in ("Combined", "Noisy Image"):
+                if layer in ("Combined", "Noisy Image", "Denoising Albedo"):
                     out[layer] = np.asarray(c.pixels, dtype=np.float32)
+            normal = [ch.get(f"ViewLayer.Denoising Normal.{a}") for a in "XYZ"]  # one channel entry per axis
+            if all(c is not None for c in normal):
+                out["Denoising Normal"] = np.stack([np.asarray(c.pixels, dtype=np.float32) for c in normal], axis=-1)
     return {k: np.ascontiguousarray(v[..., :3]) for k, v in out.items()}
 
 
@@ -413,6 +418,9 @@ class CyclesBackend:
         t_setup = time.perf_counter()
         passes = self._render_exr("beauty")
         linear, noisy = passes["Combined"], passes.get("Noisy Image")
+        guides = None
+        if noisy is not None and "Denoising Albedo" in passes and "Denoising Normal" in passes:
+            guides = np.concatenate([passes["Denoising Albedo"], passes["Denoising Normal"]], axis=-1)
         seconds = time.perf_counter() - t0
         check_finite(linear, "cycles render")
         stats = ps.stats()
@@ -420,7 +428,12 @@ class CyclesBackend:
         t_tone = time.perf_counter()
         rgb = linear_to_srgb8(linear)
         stats["phases"] = {"setup": t_setup - t0, **self.last_phases, "tonemap": time.perf_counter() - t_tone}
-        return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy)
+        return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy, guides=guides)
+
+    def denoise(self, linear: np.ndarray, guides: np.ndarray) -> np.ndarray:
+        """``linear`` denoised with its guides (RenderResult.guides) by OpenImageDenoise on the CPU,
+        with this backend's quality and prefilter: the images the core makes of several renders."""
+        return oidn(linear, guides, self.options.denoise_quality, self.options.denoise_prefilter, who="cycles")
 
     def render_index_masks(self, camera: CameraIR) -> np.ndarray:
         """HxW int32 instance map from Cycles itself: -1 background/scene geometry, else MeshInstance.inst.

@@ -678,6 +678,33 @@ def test_denoised_render_carries_the_render_before_the_denoiser(backend, meshes)
     assert den.linear.tobytes() != raw.linear.tobytes()
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("prefilter", ["none", "fast", "accurate"])
+def test_a_denoised_render_carries_its_guides_and_the_backend_denoises_as_cycles_does(backend, meshes, prefilter):
+    """With denoising on, a render carries the denoiser's guides (albedo in [0, 1], unit normals)
+    and ``denoise(noisy, guides)`` (OIDN through pyoidn, with the options' quality and prefilter)
+    is what Cycles' own denoiser made of the same render: measured 0.1x the noisy image's
+    relative MSE against it (pyoidn and Blender's OIDN differ a little), asserted under 0.25x."""
+    backend.load(_lit_scene(meshes))
+    opts = backend.options
+    try:
+        backend.options = opts.model_copy(update={"denoise": True, "denoise_prefilter": prefilter})
+        res = backend.render(camera(W=96, H=72, fx=70.0, C=(0.0, 0.0, 3.0)), QualityPreset(**{**LOW.model_dump(), "aa": 8}), 3)
+        ours = backend.denoise(res.noisy, res.guides)
+    finally:
+        backend.options = opts
+    g = res.guides
+    assert g.shape == (72, 96, 6) and g.dtype == np.float32
+    assert 0.0 <= g[..., :3].min() and g[..., :3].max() <= 1.0
+    lengths = np.linalg.norm(g[..., 3:], axis=-1)
+    assert np.median(lengths) == pytest.approx(1.0, abs=0.02)
+
+    def rel(x):
+        return float(np.mean((x - res.linear) ** 2 / (res.linear**2 + 1e-2)))
+
+    assert rel(ours) < 0.25 * rel(res.noisy), (rel(ours), rel(res.noisy))
+
+
 def _noisy_scene(meshes) -> RenderScene:
     """The lit scene's objects under a small, dim point light and a bright grey sky seen only
     after a bounce off the floor: much more noise per sample than _lit_scene's."""

@@ -14,6 +14,7 @@ from specsynth.assets.library.cache import cache_dir
 from specsynth.assets.meshio import MeshData, read_mesh
 from specsynth.model.colour import check_finite, linear_to_srgb8
 from specsynth.model.conventions import cam_to_world, opencv_to_mitsuba_c2w
+from specsynth.model.denoiser import oidn
 from specsynth.model.ir import CameraIR, RenderResult, RenderScene
 from specsynth.spec.models import QualityPreset
 
@@ -29,14 +30,8 @@ def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray, quality:
             clean_guides: bool = False) -> np.ndarray:
     """OpenImageDenoise (HDR, guided by albedo and normals) on the CPU, as Cycles runs it;
     ``clean_guides``: the guides are taken as noise-free (Cycles' prefilter 'none')."""
-    try:
-        import pyoidn
-    except ImportError as e:
-        raise RuntimeError("mitsuba: denoise needs pyoidn (pip install pyoidn; make install does)") from e
-    out = pyoidn.denoise(np.ascontiguousarray(linear, np.float32), np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
-                         np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True, quality=quality,
-                         clean_aux=clean_guides)
-    return np.ascontiguousarray(np.maximum(np.asarray(out, np.float32), 0.0))
+    return oidn(linear, np.concatenate([albedo, normal], axis=-1), quality, "none" if clean_guides else "fast",
+                who="mitsuba")
 
 
 # Worst-case reprojection error (px) below which Mitsuba's square-pixel perspective sensor counts as
@@ -147,7 +142,7 @@ class MitsubaBackend:
         check_finite(linear, f"mitsuba render ({self.variant})")
         linear = np.ascontiguousarray(np.maximum(linear, 0.0))
         t_read = time.perf_counter()
-        denoise_seconds = guide_seconds = noisy = None
+        denoise_seconds = guide_seconds = noisy = guides = None
         if self.options.denoise:
             noisy = linear
             # The guides take the beauty's samples and seed, hence its sample positions in each
@@ -156,8 +151,8 @@ class MitsubaBackend:
             guides = self._guides(sensor, seed_arg, st.spp)
             t1 = time.perf_counter()
             guide_seconds = t1 - t_read
-            linear = denoise(linear, albedo=guides[..., 0:3], normal=guides[..., 3:6], quality=self.options.denoise_quality,
-                             clean_guides=self.options.denoise_prefilter == "none")
+            guides = np.ascontiguousarray(guides[..., 0:6], np.float32)
+            linear = self.denoise(linear, guides)
             denoise_seconds = time.perf_counter() - t1
         stats = {
             "variant": self.variant,
@@ -184,7 +179,12 @@ class MitsubaBackend:
         stats["phases"] = {"setup": t0 - t_setup, "trace": t_trace - t0, "readback": t_read - t_trace,
                            "guides": guide_seconds or 0.0, "denoise": denoise_seconds or 0.0,
                            "tonemap": time.perf_counter() - t_tone}
-        return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy)
+        return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy, guides=guides)
+
+    def denoise(self, linear: np.ndarray, guides: np.ndarray) -> np.ndarray:
+        """``linear`` denoised as a render is, with its guides (albedo, normal: RenderResult.guides)."""
+        return denoise(linear, albedo=guides[..., 0:3], normal=guides[..., 3:6], quality=self.options.denoise_quality,
+                       clean_guides=self.options.denoise_prefilter == "none")
 
     def close(self) -> None:
         self._scene = None

@@ -499,6 +499,31 @@ def test_denoiser_guides_share_the_beautys_samples_so_edges_stay_where_they_are(
     assert edges.sum() > 50 and err(own.linear) < 0.7 * err(fewer), (edges.sum(), err(own.linear), err(fewer))
 
 
+@pytest.mark.slow
+def test_a_denoised_render_carries_its_guides_and_denoise_remakes_the_image(tmp_path):
+    """With denoising on, a render carries its guides (albedo, then normal) and ``denoise(noisy,
+    guides)`` is the image it returned, bit for bit: the core denoises several renders' samples
+    together with the same filter."""
+    pytest.importorskip("pyoidn")
+    from dataclasses import replace
+
+    from specsynth.testing.materials import camera, quad, quality
+    from specsynth_mitsuba.backend import MitsubaBackend
+
+    card = replace(quad(tmp_path, "card", 0.3), material=MaterialIR(base_color=(0.7, 0.5, 0.3), use_vertex_colors=False))
+    scene = RenderScene(meshes=(card,), lights=(LightIR(kind="point", pose=_pose((0.2, 0.1, 0.9)), power=20.0),),
+                        world=WorldIR(color=(0.05, 0.05, 0.06)))
+    dn = MitsubaBackend({"variant": "auto", "denoise": True}, threads=2)
+    try:
+        dn.load(scene)
+        res = dn.render(camera((0.3, -0.3, 0.6), (0, 0, 0), 60.0, 48, 36), quality(4, 3), seed=2)
+        again = dn.denoise(res.noisy, res.guides)
+    finally:
+        dn.close()
+    assert res.guides.shape == (36, 48, 6) and res.guides.dtype == np.float32
+    assert np.array_equal(again, res.linear)
+
+
 # ----------------------------------------------------------------------------- files it keeps
 
 DRJIT_PROBE = """
