@@ -200,12 +200,12 @@ def test_a_denoised_image_lands_on_the_target_bias_included(sigma):
 
 class GuidedRenderer(NoisyRenderer):
     """Renders denoised by the renderer, with the image before its denoiser and the guides it used
-    (here: constant albedo and normal, which the stand-in denoiser ignores): the core can denoise
-    several renders' samples together with ``blur``."""
+    (here: albedo i / 100 and normal -i / 100 for the i-th render, which the stand-in denoiser
+    ignores): the core can denoise several renders' samples together with ``blur``."""
 
     def __call__(self, samples: int, i: int) -> RenderResult:
         res = super().__call__(samples, i)
-        guides = np.concatenate([np.full_like(res.linear, 0.5), np.zeros_like(res.linear)], axis=-1)
+        guides = np.concatenate([np.full_like(res.linear, i / 100), np.full_like(res.linear, -i / 100)], axis=-1)
         return RenderResult(res.rgb, blur(res.linear), res.stats, noisy=res.linear, guides=guides)
 
 
@@ -232,10 +232,25 @@ def test_denoising_every_sample_spent_lands_on_the_target_for_fewer_samples(sigm
     last_pair = render_to_target(GuidedRenderer(mu, sigma, 3), ErrorTarget(paper, 2, 4 * paper), linear_to_srgb8)
     truth = rel_mse(done.result.linear, mu)
     assert done.denoised and done.image_samples == done.samples and calls
-    assert np.allclose(calls[-1][..., :3], 0.5) and np.allclose(calls[-1][..., 3:], 0.0)  # the guides' mean
+    r = GuidedRenderer(mu, sigma, 3)
+    render_to_target(r, ErrorTarget(paper, 2, 4 * paper), linear_to_srgb8, denoise=_guided_denoiser(calls := []))
+    for half, guides in zip((0, 1), calls[-2:]):  # each half's guides: its own renders', weighted by samples
+        n = np.array(r.calls[half::2], float)
+        albedo = float(np.sum(n * np.arange(half, len(r.calls), 2) / 100) / n.sum())
+        assert np.allclose(guides[..., :3], albedo, atol=1e-6) and np.allclose(guides[..., 3:], -albedo, atol=1e-6)
     assert abs(done.error - truth) <= 3 * done.error_se + 0.02 * truth
     assert truth <= 1.1 * truth_paper
     assert done.samples < last_pair.samples < paper, (done.stats(), last_pair.stats())
+
+
+def test_a_group_keeps_one_way_when_only_some_of_its_images_have_guides():
+    """Stereo eyes are one image kind: if one eye's renders carry no guides, neither eye's halves
+    are denoised by the core, and both keep the last pair the backend denoised."""
+    mu = scene(6)
+    eyes = [GuidedRenderer(mu, 1.0, 3), DenoisingRenderer(mu, 1.0, 4)]
+    done = render_group_to_target(eyes, ErrorTarget(225, 2, 900), linear_to_srgb8, denoise=_guided_denoiser(calls := []))
+    assert not calls
+    assert [d.denoised for d in done] == [True, True] and done[0].image_samples == done[1].image_samples < done[0].samples
 
 
 def test_renders_without_guides_keep_the_last_pair_way_with_a_denoiser_given():

@@ -53,14 +53,15 @@ def test_a_dressed_top_keeps_its_stage_area_free_and_its_flat_matter_thin(seed):
 
 def test_a_bigger_top_is_dressed_about_as_densely_per_square_metre_as_a_desk():
     """A lab bench (2.15 x 1.19 m) and an island of two desks (1.6 x 1.6 m) carry about as many things
-    per square metre as a 1.6 x 0.8 m desk (with the counts of one desk: 0.75 and 0.58 of its density)."""
-    def per_m2(w: float, d: float) -> float:
+    per square metre as a 1.6 x 0.8 m desk: measured 0.81 and 0.79 of its density (0.75 and 0.58
+    with the counts of one desk); what a desk has one of (a lamp, a shelf unit) does not multiply."""
+    def per_m2(w: float, d: float, island: bool = False) -> float:
         top = props.Top(cx=0.0, cy=0.0, width=w, depth=d, yaw=0.0, z=0.75)
-        return np.mean([len(props.dress(top, np.random.default_rng(s), cache_dir(), "desk00").meshes)
+        return np.mean([len(props.dress(top, np.random.default_rng(s), cache_dir(), "desk00", island=island).meshes)
                         for s in range(8)]) / (w * d)
     desk = per_m2(1.6, 0.8)
-    for w, d in ((2.15, 1.19), (1.6, 1.6)):
-        assert per_m2(w, d) > 0.75 * desk, (w, d)
+    for w, d, island in ((2.15, 1.19, False), (1.6, 1.6, False), (1.6, 1.6, True)):
+        assert per_m2(w, d, island) > 0.77 * desk, (w, d, island)
 
 
 def test_dressing_is_the_same_for_a_seed_and_empty_at_density_zero():

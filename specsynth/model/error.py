@@ -163,7 +163,8 @@ class TargetedResult:
     renders: int
     error: float  # estimated relative MSE of the result
     target: float  # estimated relative MSE of the paper preset at this view
-    # (the pair's samples, its denoised mean's upper bound) per pair rendered for the denoised way
+    # (the denoised image's samples, its upper bound) per pair rendered for the denoised way, or
+    # per step when the core denoises the halves of every sample spent (then: all samples so far)
     history: list[tuple[int, float]] = field(default_factory=list)
     error_se: float = 0.0  # the estimate's standard error
     image_samples: int = 0  # samples per pixel in the result: all spent, or the last pair's (denoised by the backend)
@@ -336,15 +337,17 @@ def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[in
     of independent renders, whose error falls as 1 / samples spent: the raw way needs what the
     image furthest from its target needs at that fall; new, larger denoised pairs (whose samples
     are all new) are chosen only at half the cost of the raw way, their fall being predicted.
-    While an image's convergence rate is not measured the next pairs take at least twice the last
+    When the core denoises the halves, both ways are made of every sample spent and the next pair
+    tops them up towards the nearer. While an image's convergence rate is not measured the next pairs take at least twice the last
     pair's samples: a second count. 0 samples: the budget is spent."""
     spent = max(image.spent for image in images)
     raw_need = max(1, max(image.raw_need() for image in images) - spent)
     histories, papers = [image.history for image in images], [image.paper for image in images]
     den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
     if den_need is not None and all(image.accumulated() for image in images):
-        # Both ways are made of every sample spent: the next pair tops up to the nearer one.
-        n_next = max(1, math.ceil(min(raw_need, max(1, den_need - spent)) / 2))
+        # Both ways are made of every sample spent: the next pair tops up to the nearer one, at most
+        # doubling the samples (a top-up loses nothing; a jump on a noisy early estimate would).
+        n_next = max(1, math.ceil(min(raw_need, max(1, den_need - spent), spent) / 2))
         den_step = True
     else:
         den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
@@ -358,27 +361,37 @@ class _Progress:
     """One image of a group on its way to its target: its raw halves, what its renders reported,
     and the last step's candidates."""
 
-    def __init__(self, render: Callable[[int, int], RenderResult], denoise: Denoise | None = None) -> None:
+    def __init__(self, render: Callable[[int, int], RenderResult]) -> None:
         self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
         self.spent, self.paper, self.rate, self.candidates = 0, 0.0, None, []
         self.pairs: list[tuple[int, np.ndarray]] = []  # (samples per render, the raw renders' squared difference)
-        self.denoise = denoise
+        self.denoise: Denoise | None = None  # set when the core denoises the halves (``evaluate``)
+        self._pair: tuple[list[RenderResult], list[int]] | None = None
 
-    def step(self, n: int, first: int, target: ErrorTarget, den_step: bool) -> None:
+    def render_pair(self, n: int, first: int) -> None:
         pair, took = _render_pair(self.render, n, first, self.raw, self.phases)
         self.spent += sum(took)
         self.reported += [res.stats for res in pair]
         a, b = (np.asarray(res.noisy if res.noisy is not None else res.linear, np.float64) for res in pair)
         self.pairs.append((took[0], ((a - b) ** 2).astype(np.float32)))
+        self._pair = pair, took
+
+    def evaluate(self, target: ErrorTarget, den_step: bool, denoise: Denoise | None) -> None:
+        """The candidates after the last pair; ``denoise``: the core denoises the halves (every
+        image of the group has its guides), else None."""
+        if self.denoise is not None and denoise is None:  # guides stopped coming: another way, another history
+            self.history = []
+        self.denoise = denoise
+        pair, took = self._pair
         self.paper, self.rate, self.candidates = _candidates(self.raw, pair, took, self.pairs, target.paper_samples,
-                                                             target.confidence, self.denoise)
+                                                             target.confidence, denoise)
         # The denoised way's history: its pairs alone, or every step when it denoises all samples spent.
         if len(self.candidates) > 1 and (den_step or self.accumulated()):
             self.history.append((self.candidates[1].samples, self.candidates[1].upper))
 
     def accumulated(self) -> bool:
         """Its denoised candidate is made of every sample spent (the halves denoised by the core)."""
-        return self.denoise is not None and self.raw.has_guides()
+        return self.denoise is not None
 
     def unmeasured(self) -> bool:
         """Its target still assumes a rate: fewer than two sample counts rendered, and noise."""
@@ -437,11 +450,15 @@ def render_group_to_target(renders: list[Callable[[int, int], RenderResult]], ta
     keeps the same kind of candidate (raw mean or denoised pair: the one whose image furthest
     from its target is nearest), so the images of a pair carry the same samples and treatment
     and only their own content's error tells them apart."""
-    images = [_Progress(render, denoise) for render in renders]
+    images = [_Progress(render) for render in renders]
     n, count, den_step = target.per_render(target.start_samples, target.max_samples), 0, True
     while True:
         for image in images:
-            image.step(n, count, target, den_step)
+            image.render_pair(n, count)
+        # One way for the whole group: the core denoises the halves only when every image has guides.
+        halves = denoise if denoise is not None and all(image.raw.has_guides() for image in images) else None
+        for image in images:
+            image.evaluate(target, den_step, halves)
         count += 2
         kinds = range(min(len(image.candidates) for image in images))
         kind = min(kinds, key=lambda k: max(image.over(k) for image in images))  # the raw mean on a tie

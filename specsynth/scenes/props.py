@@ -123,6 +123,9 @@ class _Dresser:
         self.top, self.rng, self.cache, self.prefix, self.layout = top, rng, cache, prefix, layout
         self.out = Dressing()
         self.flats: list[tuple[float, float, float, float]] = []  # (u, v, radius, top z) of flat items
+        # Counts are for a typical desk's top: a bigger one gets more in proportion to its area
+        # (the chances of things a desk has one of do not grow).
+        self.per_area = 1.0
 
     def name(self, what: str) -> str:
         return f"{self.prefix}_{what}_{len(self.out.meshes):03d}"
@@ -342,16 +345,16 @@ def dress(top: Top, rng, cache: Path, prefix: str, density: float = 1.0, board: 
     stage = stage_area(top, rng, island or seam, seam)
     if density <= 0:
         return Dressing(stage=stage)
-    density *= max(1.0, top.width * top.depth / DESK_AREA)
     layout = _Layout(top, rng, stage)
     dr = _Dresser(top, rng, Path(cache), prefix, layout)
+    dr.per_area = max(1.0, top.width * top.depth / DESK_AREA)
     dr.out.stage = stage
     _flat_layer(dr, stage, density, board)
     _back_row(dr, stage, density)
     _sides(dr, stage, density)
     if island:
         _front_row(dr, stage, density)
-    for _ in range(int(round(density * rng.uniform(0, 2)))):
+    for _ in range(int(round(density * dr.per_area * rng.uniform(0, 2)))):
         dr.cable(float(rng.uniform(-top.width / 2, top.width / 2)), float(rng.uniform(stage[3], top.depth / 2)), top.z)
     return dr.out
 
@@ -384,7 +387,7 @@ def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
     board, half the paper lies on or over the stage area (objects stand on paper on real desks)."""
     top, rng = dr.top, dr.rng
     whole = (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
-    n = _count(rng, 4, 10, density)
+    n = _count(rng, 4, 10, density * dr.per_area)
     if rng.random() >= board:
         _paper(dr, stage, n // 2)
         _paper(dr, whole, n - n // 2)
@@ -440,7 +443,7 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
     """Behind the stage area: monitors, a lamp, a shelf unit, books, boxes, plants."""
     top, rng, lay = dr.top, dr.rng, dr.layout
     back = (-top.width / 2, stage[3], top.width / 2, top.depth / 2)
-    for _ in range(max(1, _count(rng, 0.8, 2.2, density))):
+    for _ in range(max(1, _count(rng, 0.8, 2.2, density * dr.per_area))):
         spot = lay.place(0.62, 0.2, back)
         if spot is not None:
             dr.monitor(spot[0], spot[1], float(rng.uniform(-15, 15)))
@@ -451,17 +454,17 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
         if spot is not None:
             dr.lamp(lamp, spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))
     _shelf(dr, stage, density)
-    for _ in range(_count(rng, 1, 3, density)):
+    for _ in range(_count(rng, 1, 3, density * dr.per_area)):
         upright = rng.random() < 0.5
         spot = lay.place(0.26 if upright else 0.26, 0.3, back)
         if spot is not None:
             dr.books(spot[0], spot[1], float(rng.uniform(-10, 10)), upright)
-    for _ in range(_count(rng, 0, 1.6, density)):
+    for _ in range(_count(rng, 0, 1.6, density * dr.per_area)):
         size = (float(rng.uniform(0.15, 0.35)), float(rng.uniform(0.12, 0.28)), float(rng.uniform(0.08, 0.25)))
         spot = lay.place(max(size[:2]), max(size[:2]), back)
         if spot is not None:
             dr.box(spot[0], spot[1], float(rng.uniform(-20, 20)), size)
-    _catalogue_items(dr, back, ("plant", "device", "drink", "toy", "computer"), _count(rng, 2, 5, density))
+    _catalogue_items(dr, back, ("plant", "device", "drink", "toy", "computer"), _count(rng, 2, 5, density * dr.per_area))
 
 
 def _sides(dr: _Dresser, stage, density: float) -> None:
@@ -478,7 +481,7 @@ def _sides(dr: _Dresser, stage, density: float) -> None:
             if mspot is not None:
                 dr.mouse(mspot[0], mspot[1], yaw + float(rng.uniform(-20, 20)))
     for zone in zones:
-        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant", "toy"), _count(rng, 2, 5, density))
+        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant", "toy"), _count(rng, 2, 5, density * dr.per_area))
         if rng.random() < 0.4 * density:
             spot = lay.place(0.26, 0.3, zone)
             if spot is not None:
@@ -494,7 +497,7 @@ def _front_row(dr: _Dresser, stage, density: float) -> None:
         spot = lay.place(0.46, 0.16, zone)
         if spot is not None:
             dr.keyboard(spot[0], spot[1], float(rng.uniform(-12, 12)))
-    _catalogue_items(dr, zone, ("drink", "office", "device", "tool"), _count(rng, 2, 5, density))
+    _catalogue_items(dr, zone, ("drink", "office", "device", "tool"), _count(rng, 2, 5, density * dr.per_area))
     if rng.random() < 0.5 * density:
         spot = lay.place(0.26, 0.3, zone)
         if spot is not None:

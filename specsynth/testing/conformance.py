@@ -347,15 +347,52 @@ def check_render_shape(ctx: ConformanceContext) -> None:
         _require(lin.shape == (HEIGHT, WIDTH, 3), ctx.name, f"linear shape is {lin.shape}, expected {(HEIGHT, WIDTH, 3)}")
         _require(np.issubdtype(lin.dtype, np.floating), ctx.name, f"linear dtype is {lin.dtype}, expected float")
         check_finite(lin, f"backend {ctx.name!r}: linear")
-    if res.guides is not None:  # the denoiser's guides: the core may denoise several renders together
-        _require(res.noisy is not None and res.guides.shape == (HEIGHT, WIDTH, 6), ctx.name,
-                 "guides need the render before the denoiser (noisy) and are HxWx6: albedo, then normal")
-        denoise = getattr(ctx.backend, "denoise", None)
-        _require(callable(denoise), ctx.name, "a backend that returns guides must offer denoise(linear, guides)")
-        out = denoise(res.noisy, res.guides)
-        _require(out.shape == (HEIGHT, WIDTH, 3) and float(np.min(out)) >= 0.0, ctx.name,
-                 "denoise() must return an HxWx3 image, never negative")
-        check_finite(out, f"backend {ctx.name!r}: denoise()")
+    if res.guides is not None:
+        _check_guides(ctx, ctx.backend, res)
+
+
+def _check_guides(ctx: ConformanceContext, backend, res: RenderResult) -> None:
+    """The denoiser's guides, with which the core denoises several renders together: HxWx6 float32
+    (albedo in [0, 1], normal in [-1, 1]) beside the render before the denoiser, and the backend's
+    ``denoise(linear, guides)``, which makes of that render about the image the backend denoised."""
+    g = res.guides
+    _require(res.noisy is not None and g.shape == (HEIGHT, WIDTH, 6) and g.dtype == np.float32, ctx.name,
+             "guides need the render before the denoiser (noisy) and are HxWx6 float32: albedo, then normal")
+    check_finite(g, f"backend {ctx.name!r}: guides")
+    _require(float(g[..., :3].min()) >= 0.0 and float(g[..., :3].max()) <= 1.0 and float(np.abs(g[..., 3:]).max()) <= 1.0 + 1e-3,
+             ctx.name, "guides: albedo must lie in [0, 1] and normals in [-1, 1]")
+    denoise = getattr(backend, "denoise", None)
+    _require(callable(denoise), ctx.name, "a backend that returns guides must offer denoise(linear, guides)")
+    out = denoise(res.noisy, g)
+    _require(out.shape == (HEIGHT, WIDTH, 3) and float(np.min(out)) >= 0.0, ctx.name,
+             "denoise() must return an HxWx3 image, never negative")
+    check_finite(out, f"backend {ctx.name!r}: denoise()")
+    lin = np.asarray(res.linear, np.float64)
+
+    def off(x) -> float:
+        return float(np.mean((np.asarray(x, np.float64) - lin) ** 2 / (lin**2 + 1e-2)))
+
+    _require(off(out) <= 0.5 * off(res.noisy), ctx.name,
+             f"denoise(noisy, guides) is not the image the backend denoised (relMSE {off(out):.3g} against it, the "
+             f"noisy render's {off(res.noisy):.3g})")
+
+
+def check_denoiser_guides(ctx: ConformanceContext) -> None:
+    """With ``denoise`` on, a render carries the render before its denoiser, and its guides if any
+    pass ``_check_guides`` (a backend instance of its own: the others render with the given options)."""
+    _require_declared(ctx, "denoise")
+    opts = ctx.options
+    opts = {**opts, "denoise": True} if isinstance(opts, dict) else opts.model_copy(update={"denoise": True})
+    backend = ctx.backend_class(opts, threads=ctx.threads)
+    try:
+        backend.load(ctx.scenes.full)
+        res = backend.render(ctx.scenes.camera, QUALITY, SEED)
+        _require(res.noisy is not None and res.noisy.shape == (HEIGHT, WIDTH, 3), ctx.name,
+                 "a denoising render must also return the render before its denoiser (RenderResult.noisy)")
+        if res.guides is not None:
+            _check_guides(ctx, backend, res)
+    finally:
+        backend.close()
 
 
 def check_determinism(ctx: ConformanceContext) -> None:
@@ -509,7 +546,7 @@ def check_motion_blur(ctx: ConformanceContext) -> None:
 
 
 # Checks of an optional capability: they apply to the backends that declare it.
-NEEDS_CAPABILITY = {"depth_of_field": "depth_of_field", "motion_blur": "motion_blur"}
+NEEDS_CAPABILITY = {"depth_of_field": "depth_of_field", "motion_blur": "motion_blur", "denoiser_guides": "denoise"}
 
 
 class NotDeclared(Exception):
@@ -540,6 +577,7 @@ CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
     "reload": check_reload,
     "depth_of_field": check_depth_of_field,
     "motion_blur": check_motion_blur,
+    "denoiser_guides": check_denoiser_guides,
 }
 
 

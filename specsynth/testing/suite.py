@@ -94,6 +94,9 @@ class BackendConformanceTests(BackendTestBase):
     def test_motion_blur(self, conformance):
         run_check(conformance, "motion_blur")
 
+    def test_denoiser_guides(self, conformance):
+        run_check(conformance, "denoiser_guides")
+
 
 def _declared(ctx: ConformanceContext, channel: str) -> None:
     if channel not in ctx.plugin.capabilities.material_channels:

@@ -18,7 +18,7 @@ PLUGIN = BackendPlugin(
         material_channels=frozenset({"base_color", "roughness", "metallic", "normal", "emission", "opacity"}),
         quality="samples = max(AA, diffuse rays, specular rays); bounce limits from the preset's depths",
     ),
-    distributions=("bpy",),
+    distributions=("bpy", "pyoidn"),  # pyoidn: the core denoises targeted images with it
     # 2: sky sun azimuth turned the IR's way. 3: OIDN without prefiltering the guides by default.
     revision=3,
     cost=(1.4, 0.458),  # a bare VGA frame on 2 cores: 1.40 s + 0.458 s per sample (benchmarks/bench_cycles.py)

@@ -80,7 +80,8 @@ def _read_exr_rgb(path: Path) -> dict[str, np.ndarray]:
                 layer = name.split(".", 1)[-1]
                 if layer in ("Combined", "Noisy Image", "Denoising Albedo"):
                     out[layer] = np.asarray(c.pixels, dtype=np.float32)
-            normal = [ch.get(f"ViewLayer.Denoising Normal.{a}") for a in "XYZ"]  # one channel entry per axis
+            # one channel entry per axis, "<view layer>.Denoising Normal.X"
+            normal = [next((c for name, c in ch.items() if name.endswith(f"Denoising Normal.{a}")), None) for a in "XYZ"]
             if all(c is not None for c in normal):
                 out["Denoising Normal"] = np.stack([np.asarray(c.pixels, dtype=np.float32) for c in normal], axis=-1)
     return {k: np.ascontiguousarray(v[..., :3]) for k, v in out.items()}

@@ -29,7 +29,7 @@ PLUGIN = BackendPlugin(
         material_channels=frozenset({"base_color", "roughness", "metallic", "normal", "emission", "opacity"}),
         quality="path tracer, samples = max(AA, diffuse rays, specular rays); max_depth from the preset",
     ),
-    distributions=("mitsuba", "drjit"),
+    distributions=("mitsuba", "drjit", "pyoidn"),
     # 2: exact K sensor for fy != fx, stratified sampler, albedo calibrated to Cycles, sky units,
     # see-through area lights. 3: calibrated quality levels. 4: denoiser guides from their own pass.
     # 5: the guides at the beauty's samples and seed.
