@@ -345,9 +345,10 @@ def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[in
     histories, papers = [image.history for image in images], [image.paper for image in images]
     den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
     if den_need is not None and all(image.accumulated() for image in images):
-        # Both ways are made of every sample spent: the next pair tops up to the nearer one, at most
-        # doubling the samples (a top-up loses nothing; a jump on a noisy early estimate would).
-        n_next = max(1, math.ceil(min(raw_need, max(1, den_need - spent), spent) / 2))
+        # Both ways are made of every sample spent: the next pair tops up to the nearer one.
+        # (Capped at doubling the samples spent, two demo views took 175 samples per image for a
+        # relMSE of 2.70e-3, against 168 for 2.41e-3, in more and smaller steps.)
+        n_next = max(1, math.ceil(min(raw_need, max(1, den_need - spent)) / 2))
         den_step = True
     else:
         den_step = den_need is not None and 2 * den_need < raw_need  # a prediction, against a sure way
