@@ -379,10 +379,13 @@ def _check_guides(ctx: ConformanceContext, backend, res: RenderResult) -> None:
 
 def check_denoiser_guides(ctx: ConformanceContext) -> None:
     """With ``denoise`` on, a render carries the render before its denoiser, and its guides if any
-    pass ``_check_guides`` (a backend instance of its own: the others render with the given options)."""
+    pass ``_check_guides``. A backend instance of its own renders it, after the shared one is
+    closed (a renderer may hold one scene per process, as bpy does: two instances at once would
+    take each other's objects); the next check makes the shared one again."""
     _require_declared(ctx, "denoise")
     opts = ctx.options
     opts = {**opts, "denoise": True} if isinstance(opts, dict) else opts.model_copy(update={"denoise": True})
+    ctx.close()
     backend = ctx.backend_class(opts, threads=ctx.threads)
     try:
         backend.load(ctx.scenes.full)
