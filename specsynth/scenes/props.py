@@ -127,6 +127,10 @@ class _Dresser:
         # (the chances of things a desk has one of do not grow).
         self.per_area = 1.0
 
+    def count(self, lo: float, hi: float, density: float) -> int:
+        """How many of a thing this top carries (``_count`` for its area)."""
+        return _count(self.rng, lo, hi, density * self.per_area)
+
     def name(self, what: str) -> str:
         return f"{self.prefix}_{what}_{len(self.out.meshes):03d}"
 
@@ -387,7 +391,7 @@ def _flat_layer(dr: _Dresser, stage, density: float, board: float) -> None:
     board, half the paper lies on or over the stage area (objects stand on paper on real desks)."""
     top, rng = dr.top, dr.rng
     whole = (-top.width / 2 + 0.12, -top.depth / 2 + 0.12, top.width / 2 - 0.12, top.depth / 2 - 0.12)
-    n = _count(rng, 4, 10, density * dr.per_area)
+    n = dr.count(4, 10, density)
     if rng.random() >= board:
         _paper(dr, stage, n // 2)
         _paper(dr, whole, n - n // 2)
@@ -443,7 +447,7 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
     """Behind the stage area: monitors, a lamp, a shelf unit, books, boxes, plants."""
     top, rng, lay = dr.top, dr.rng, dr.layout
     back = (-top.width / 2, stage[3], top.width / 2, top.depth / 2)
-    for _ in range(max(1, _count(rng, 0.8, 2.2, density * dr.per_area))):
+    for _ in range(max(1, dr.count(0.8, 2.2, density))):
         spot = lay.place(0.62, 0.2, back)
         if spot is not None:
             dr.monitor(spot[0], spot[1], float(rng.uniform(-15, 15)))
@@ -454,17 +458,17 @@ def _back_row(dr: _Dresser, stage, density: float) -> None:
         if spot is not None:
             dr.lamp(lamp, spot[0], spot[1], ((stage[0] + stage[2]) / 2, (stage[1] + stage[3]) / 2))
     _shelf(dr, stage, density)
-    for _ in range(_count(rng, 1, 3, density * dr.per_area)):
+    for _ in range(dr.count(1, 3, density)):
         upright = rng.random() < 0.5
         spot = lay.place(0.26 if upright else 0.26, 0.3, back)
         if spot is not None:
             dr.books(spot[0], spot[1], float(rng.uniform(-10, 10)), upright)
-    for _ in range(_count(rng, 0, 1.6, density * dr.per_area)):
+    for _ in range(dr.count(0, 1.6, density)):
         size = (float(rng.uniform(0.15, 0.35)), float(rng.uniform(0.12, 0.28)), float(rng.uniform(0.08, 0.25)))
         spot = lay.place(max(size[:2]), max(size[:2]), back)
         if spot is not None:
             dr.box(spot[0], spot[1], float(rng.uniform(-20, 20)), size)
-    _catalogue_items(dr, back, ("plant", "device", "drink", "toy", "computer"), _count(rng, 2, 5, density * dr.per_area))
+    _catalogue_items(dr, back, ("plant", "device", "drink", "toy", "computer"), dr.count(2, 5, density))
 
 
 def _sides(dr: _Dresser, stage, density: float) -> None:
@@ -481,7 +485,7 @@ def _sides(dr: _Dresser, stage, density: float) -> None:
             if mspot is not None:
                 dr.mouse(mspot[0], mspot[1], yaw + float(rng.uniform(-20, 20)))
     for zone in zones:
-        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant", "toy"), _count(rng, 2, 5, density * dr.per_area))
+        _catalogue_items(dr, zone, ("drink", "office", "device", "tool", "plant", "toy"), dr.count(2, 5, density))
         if rng.random() < 0.4 * density:
             spot = lay.place(0.26, 0.3, zone)
             if spot is not None:
@@ -497,7 +501,7 @@ def _front_row(dr: _Dresser, stage, density: float) -> None:
         spot = lay.place(0.46, 0.16, zone)
         if spot is not None:
             dr.keyboard(spot[0], spot[1], float(rng.uniform(-12, 12)))
-    _catalogue_items(dr, zone, ("drink", "office", "device", "tool"), _count(rng, 2, 5, density * dr.per_area))
+    _catalogue_items(dr, zone, ("drink", "office", "device", "tool"), dr.count(2, 5, density))
     if rng.random() < 0.5 * density:
         spot = lay.place(0.26, 0.3, zone)
         if spot is not None:

@@ -26,14 +26,6 @@ from .textures import register_product_texture
 from .variant import choose_variant
 
 
-def denoise(linear: np.ndarray, albedo: np.ndarray, normal: np.ndarray, quality: str = "high",
-            clean_guides: bool = False) -> np.ndarray:
-    """OpenImageDenoise (HDR, guided by albedo and normals) on the CPU, as Cycles runs it;
-    ``clean_guides``: the guides are taken as noise-free (Cycles' prefilter 'none')."""
-    return oidn(linear, np.concatenate([albedo, normal], axis=-1), quality, "none" if clean_guides else "fast",
-                who="mitsuba")
-
-
 # Worst-case reprojection error (px) below which Mitsuba's square-pixel perspective sensor counts as
 # exact; above it the K sensor renders (JIT variants) or stats report fy_error_px (scalar_rgb).
 EXACT_PX = 1e-3
@@ -182,9 +174,9 @@ class MitsubaBackend:
         return RenderResult(rgb=rgb, linear=linear, stats=stats, noisy=noisy, guides=guides)
 
     def denoise(self, linear: np.ndarray, guides: np.ndarray) -> np.ndarray:
-        """``linear`` denoised as a render is, with its guides (albedo, normal: RenderResult.guides)."""
-        return denoise(linear, albedo=guides[..., 0:3], normal=guides[..., 3:6], quality=self.options.denoise_quality,
-                       clean_guides=self.options.denoise_prefilter == "none")
+        """``linear`` denoised as a render is (OpenImageDenoise on the CPU, as Cycles runs it), with
+        its guides (albedo, normal: RenderResult.guides); prefilter 'none' takes them as noise-free."""
+        return oidn(linear, guides, self.options.denoise_quality, self.options.denoise_prefilter, who="mitsuba")
 
     def close(self) -> None:
         self._scene = None
