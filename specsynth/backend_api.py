@@ -46,7 +46,9 @@ class RenderBackend(Protocol):
         """Build the renderer's scene; called once per arrangement."""
 
     def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None) -> RenderResult:
-        """Render one view. Same inputs and seed -> identical pixels on the same machine."""
+        """Render one view. Same inputs and seed -> identical pixels on the same machine. A backend
+        whose plugin declares ``Capabilities.continues_samples`` also takes ``sample_offset=k``:
+        the samples k to k + n of the sequence that ``seed`` starts (0, the default: a render)."""
 
     def close(self) -> None: ...
 

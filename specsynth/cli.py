@@ -311,6 +311,7 @@ def backend_rows() -> list[dict]:
             "name": p.name, "fingerprint": p.fingerprint(),
             "capabilities": {"draws_scene": caps.draws_scene, "denoise": caps.denoise, "gpu": caps.gpu,
                              "depth_of_field": caps.depth_of_field, "motion_blur": caps.motion_blur,
+                             "sampling_noise": caps.sampling_noise, "continues_samples": caps.continues_samples,
                              "material_channels": sorted(caps.material_channels), "quality": caps.quality},
             "options": {k: f.default for k, f in p.options.model_fields.items() if k != "name"},
         })
@@ -329,7 +330,8 @@ def cmd_backends(args) -> int:
             print(f"{r['name']:10s} BROKEN: {r['error']}")
             continue
         c = r["capabilities"]
-        flags = [k for k in ("draws_scene", "denoise", "gpu", "depth_of_field", "motion_blur") if c[k]]
+        flags = [k for k in ("draws_scene", "denoise", "gpu", "depth_of_field", "motion_blur", "sampling_noise",
+                             "continues_samples") if c[k]]
         print(f"{r['name']:10s} {r['fingerprint']}\n{'':10s} can: {', '.join(flags) or '-'}; materials: "
               f"{', '.join(c['material_channels'])}\n{'':10s} options: "
               + ", ".join(f"{k}={v!r}" for k, v in r["options"].items()))

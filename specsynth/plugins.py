@@ -44,6 +44,11 @@ class Capabilities:
     # backend renders ``quality``'s samples when its options set none, and independent seeds give
     # independent images of the same view.
     sampling_noise: bool = False
+    # ``render(..., sample_offset=k)`` renders the samples k to k + n of the sequence its seed
+    # starts: renders of consecutive ranges, averaged with weights by their samples, are one render
+    # of all of them. An error target then extends each of an image's two halves instead of
+    # averaging independent renders (a quasi-random sampler keeps converging faster than 1 / N).
+    continues_samples: bool = False
     depth_of_field: bool = False  # renders CameraIR.aperture / focus_distance (a thin lens)
     motion_blur: bool = False  # renders CameraIR.motion (the camera moving during the exposure)
     material_channels: frozenset[str] = frozenset({"base_color"})
@@ -151,7 +156,8 @@ class BackendPlugin:
         if start < 1:
             raise ValueError(f"quality.max_samples {budget} fits no pair of renders: backend {self.name!r} renders "
                              f"at least {taken(counts, 1)} samples per pixel per render")
-        return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=budget, counts=counts)
+        return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=budget, counts=counts,
+                           continues=self.capabilities.continues_samples)
 
     def load_class(self) -> type:
         mod, _, attr = self.backend.partition(":")

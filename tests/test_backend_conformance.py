@@ -114,6 +114,46 @@ def test_a_backend_with_guides_and_its_denoise_passes(tmp_path):
         context.close()
 
 
+def _continuing_variants():
+    flat = load_backend("flat")
+
+    class Continuing(flat):  # per-sample noise from the seed and the sample's index: ranges continue
+        def render(self, camera, quality, seed, *, clamp=None, sample_offset=0):
+            r = super().render(camera, quality, seed, clamp=clamp)
+            lin = r.rgb.astype(np.float64) / 255
+            noise = np.mean([self.sample(seed, k, lin.shape) for k in range(sample_offset, sample_offset + quality.aa)], axis=0)
+            return RenderResult(rgb=r.rgb, linear=(lin + noise).astype(np.float32), stats=r.stats)
+
+        def sample(self, seed, k, shape):
+            return np.random.default_rng((seed, k)).normal(0.0, 0.05, shape)
+
+    class IgnoresTheOffset(Continuing):
+        def render(self, camera, quality, seed, *, clamp=None, sample_offset=0):
+            return super().render(camera, quality, seed, clamp=clamp)
+
+    class RestartsEachRange(Continuing):  # a new sequence per offset: the ranges are not one render
+        def render(self, camera, quality, seed, *, clamp=None, sample_offset=0):
+            return super().render(camera, quality, seed + sample_offset, clamp=clamp)
+
+    return Continuing, IgnoresTheOffset, RestartsEachRange
+
+
+@pytest.mark.parametrize("variant, passes", [(0, True), (1, False), (2, False)],
+                         ids=["continues", "ignores-the-offset", "restarts-each-range"])
+def test_sample_continuation_is_checked(tmp_path, variant, passes):
+    cls = _continuing_variants()[variant]
+    claims = replace(backend_plugin("flat").capabilities, continues_samples=True)
+    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=cls, capabilities=claims)
+    try:
+        if passes:
+            CHECKS["sample_continuation"](context)
+        else:
+            with pytest.raises(ConformanceError):
+                CHECKS["sample_continuation"](context)
+    finally:
+        context.close()
+
+
 # --------------------------------------------------------------------------- the slow mark tells the truth
 # A backend whose renderer draws nothing, loaded by "module:attribute" (not installed), declared slow.
 

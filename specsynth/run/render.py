@@ -331,11 +331,12 @@ def draw_to_target(backend, cams: Sequence[CameraIR], preset, seed: int, target:
     estimates'."""
     spent = [0.0] * len(cams)
 
-    def drawer(k: int) -> Callable[[int, int], RenderResult]:
-        def one(samples: int, i: int) -> RenderResult:
+    def drawer(k: int) -> Callable[..., RenderResult]:
+        def one(samples: int, i: int, offset: int = 0) -> RenderResult:
             q = preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
+            more = {"sample_offset": offset} if offset else {}  # only to a backend that continues (target.continues)
             t0 = time.perf_counter()
-            res = backend.render(cams[k], q, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp)
+            res = backend.render(cams[k], q, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp, **more)
             spent[k] += time.perf_counter() - t0
             return res
         return one

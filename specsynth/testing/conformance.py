@@ -398,6 +398,28 @@ def check_denoiser_guides(ctx: ConformanceContext) -> None:
         backend.close()
 
 
+def check_sample_continuation(ctx: ConformanceContext) -> None:
+    """``render(..., sample_offset=k)`` (Capabilities.continues_samples): the samples 2 to 4 of a
+    seed's sequence are not its first 2 again, and the two ranges averaged are the render of its
+    first 4 (within float rounding: an error target takes the halves of an image as such)."""
+    _require_declared(ctx, "continues_samples")
+    ctx.render()  # the scene loaded
+
+    def raw(samples: int, offset: int) -> np.ndarray:
+        q = QUALITY.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
+        res = ctx.backend.render(ctx.scenes.camera, q, SEED, **({"sample_offset": offset} if offset else {}))
+        got = res.noisy if res.noisy is not None else res.linear
+        _require(got is not None, ctx.name, "a backend that continues samples must return the linear render")
+        return np.asarray(got, np.float64)
+
+    first, more, both = raw(2, 0), raw(2, 2), raw(4, 0)
+    _require(not np.array_equal(first, more), ctx.name, "the render from sample_offset=2 is the first samples' again: "
+             "is the offset used?")
+    off = float(np.max(np.abs((first + more) / 2 - both) / (1.0 + np.abs(both))))
+    _require(off <= 1e-4, ctx.name, f"samples 0-2 and 2-4 averaged are not the render of samples 0-4 (off by up to "
+             f"{off:.3g} relative)")
+
+
 def check_determinism(ctx: ConformanceContext) -> None:
     """Same inputs and seed give identical pixels, whatever was rendered in between."""
     a = _rgb(ctx, ctx.render(seed=SEED))
@@ -549,7 +571,8 @@ def check_motion_blur(ctx: ConformanceContext) -> None:
 
 
 # Checks of an optional capability: they apply to the backends that declare it.
-NEEDS_CAPABILITY = {"depth_of_field": "depth_of_field", "motion_blur": "motion_blur", "denoiser_guides": "denoise"}
+NEEDS_CAPABILITY = {"depth_of_field": "depth_of_field", "motion_blur": "motion_blur", "denoiser_guides": "denoise",
+                    "sample_continuation": "continues_samples"}
 
 
 class NotDeclared(Exception):
@@ -581,6 +604,7 @@ CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
     "depth_of_field": check_depth_of_field,
     "motion_blur": check_motion_blur,
     "denoiser_guides": check_denoiser_guides,
+    "sample_continuation": check_sample_continuation,
 }
 
 

@@ -97,6 +97,9 @@ class BackendConformanceTests(BackendTestBase):
     def test_denoiser_guides(self, conformance):
         run_check(conformance, "denoiser_guides")
 
+    def test_sample_continuation(self, conformance):
+        run_check(conformance, "sample_continuation")
+
 
 def _declared(ctx: ConformanceContext, channel: str) -> None:
     if channel not in ctx.plugin.capabilities.material_channels:

@@ -719,13 +719,15 @@ def _noisy_scene(meshes) -> RenderScene:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("make", [_lit_scene, _noisy_scene], ids=["little-noise", "much-noise"])
-def test_high_under_an_error_target_lands_on_the_paper_error(backend, meshes, make):
+@pytest.mark.parametrize("continues", [False, True], ids=["independent", "continued"])
+def test_high_under_an_error_target_lands_on_the_paper_error(backend, meshes, make, continues):
     """Two scenes of very different noise at `high` with quality.control: error: each image's true
     error (against a converged reference, less the reference's own variance) is within 10 % of
     its target, the paper preset's error extrapolated from the image's own noise at the rate it
     falls with the samples, measured on the image, for at most about the paper's 225 samples.
     (Measured: the target is 0.86x Cycles' own 225-sample render's error on the lit scene, rate
-    1.21, and 1.28x on the noisy one, rate 1, whose fireflies make one render's error a noisy number.)"""
+    1.21, and 1.28x on the noisy one, rate 1, whose fireflies make one render's error a noisy number.)
+    ``continued``: each half extends its own sample sequence (sample_offset), as builds render."""
     from specsynth.model.colour import linear_to_srgb8
     from specsynth.model.error import ErrorTarget, rel_mse, render_to_target, split_rel_mse
 
@@ -740,11 +742,14 @@ def test_high_under_an_error_target_lands_on_the_paper_error(backend, meshes, ma
         ref, ref_var = (ra + rb) / 2, split_rel_mse(ra, rb)
         paper = rel_mse(backend.render(cam, high, 3).linear, ref) - ref_var
         backend.options = opts.model_copy(update={"denoise": True})
-        done = render_to_target(lambda n, i: backend.render(cam, q(n), 100 + i), ErrorTarget(225, 2, 900), linear_to_srgb8)
+        done = render_to_target(lambda n, i, offset=0: backend.render(cam, q(n), 100 + i, sample_offset=offset),
+                                ErrorTarget(225, 2, 900, continues=continues), linear_to_srgb8)
     finally:
         backend.options = opts
     truth = rel_mse(done.result.linear, ref) - ref_var
     assert truth <= 1.1 * done.target, (truth, paper, done.stats())
     assert done.target == pytest.approx(paper, rel=0.5)  # from the image's own noise, tiny and with fireflies
     # at most about the paper's samples: its 1.645 standard errors to spare cost up to ~40 % more
-    assert done.samples <= 1.5 * 225, done.stats()
+    # (continued: up to ~60 %, measured 352 on the lit scene, where each half grows at most 4x a
+    # step and the 96 x 72 image's 64 tiles put the estimate's standard error at ~25 % of it)
+    assert done.samples <= (1.6 if continues else 1.5) * 225, done.stats()
