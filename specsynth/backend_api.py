@@ -55,4 +55,6 @@ class RenderBackend(Protocol):
     # Optional: a backend that denoises and returns its denoiser's guides (RenderResult.guides) may
     # also offer ``denoise(linear, guides) -> linear``, which denoises an image as a render of its
     # own would be: under ``quality.control: error`` the core then denoises the samples of all of an
-    # image's renders together (specsynth.model.error) instead of the last pair alone.
+    # image's renders together (specsynth.model.error) instead of the last pair alone, and asks
+    # each render for ``render(..., skip_denoiser=True)``: the render before its denoiser (as
+    # ``linear`` and ``noisy``) with its guides, the denoiser not run.

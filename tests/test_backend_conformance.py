@@ -114,6 +114,44 @@ def test_a_backend_with_guides_and_its_denoise_passes(tmp_path):
         context.close()
 
 
+def _denoising_variants():
+    flat = load_backend("flat")
+    from scipy.ndimage import uniform_filter
+
+    class Denoising(flat):  # seeded noise, guides, a 3 x 3 box filter as its denoiser
+        def render(self, camera, quality, seed, *, clamp=None, skip_denoiser=False):
+            r = super().render(camera, quality, seed, clamp=clamp)
+            clean = r.rgb.astype(np.float32) / 255
+            noisy = np.clip(clean + np.random.default_rng(seed).normal(0.0, 0.05, clean.shape), 0, None).astype(np.float32)
+            guides = np.concatenate([clean, np.zeros_like(clean)], axis=-1)
+            linear = noisy if skip_denoiser else self.denoise(noisy, guides)
+            return RenderResult(rgb=r.rgb, linear=linear, stats=r.stats, noisy=noisy, guides=guides)
+
+        def denoise(self, linear, guides):
+            return uniform_filter(linear, size=(3, 3, 1), mode="nearest")
+
+    class DenoisesAnyway(Denoising):  # skip_denoiser taken, but the image denoised all the same
+        def render(self, camera, quality, seed, *, clamp=None, skip_denoiser=False):
+            return super().render(camera, quality, seed, clamp=clamp)
+
+    return Denoising, DenoisesAnyway
+
+
+@pytest.mark.parametrize("variant, passes", [(0, True), (1, False)], ids=["skips-its-denoiser", "denoises-anyway"])
+def test_a_render_that_skips_its_denoiser_is_checked(tmp_path, variant, passes):
+    cls = _denoising_variants()[variant]
+    claims = replace(backend_plugin("flat").capabilities, denoise=True)
+    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=cls, capabilities=claims)
+    try:
+        if passes:
+            CHECKS["denoiser_guides"](context)
+        else:
+            with pytest.raises(ConformanceError, match="skip_denoiser"):
+                CHECKS["denoiser_guides"](context)
+    finally:
+        context.close()
+
+
 def _continuing_variants():
     flat = load_backend("flat")
 

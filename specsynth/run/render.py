@@ -330,11 +330,15 @@ def draw_to_target(backend, cams: Sequence[CameraIR], preset, seed: int, target:
     its samples and error in its stats, and its seconds: its own renders' and a share of the
     estimates'."""
     spent = [0.0] * len(cams)
+    # A backend that can denoise an image of its own kind (RenderBackend.denoise) gets every sample
+    # spent denoised together, not only the last pair: its renders skip their own denoiser.
+    denoise = getattr(backend, "denoise", None)
+    skip = {"skip_denoiser": True} if denoise is not None else {}
 
     def drawer(k: int) -> Callable[..., RenderResult]:
         def one(samples: int, i: int, offset: int = 0) -> RenderResult:
             q = preset.model_copy(update={"aa": samples, "diffuse_rays": samples, "specular_rays": samples})
-            more = {"sample_offset": offset} if offset else {}  # only to a backend that continues (target.continues)
+            more = {**skip, **({"sample_offset": offset} if offset else {})}  # offsets: target.continues only
             t0 = time.perf_counter()
             res = backend.render(cams[k], q, seed if i == 0 else seeds.job_seed(seed, f"render/{i}"), clamp=clamp, **more)
             spent[k] += time.perf_counter() - t0
@@ -342,10 +346,7 @@ def draw_to_target(backend, cams: Sequence[CameraIR], preset, seed: int, target:
         return one
 
     t0 = time.perf_counter()
-    # A backend that can denoise an image of its own kind (RenderBackend.denoise) gets every sample
-    # spent denoised together, not only the last pair.
-    done = render_group_to_target([drawer(k) for k in range(len(cams))], target, linear_to_srgb8,
-                                  getattr(backend, "denoise", None))
+    done = render_group_to_target([drawer(k) for k in range(len(cams))], target, linear_to_srgb8, denoise)
     shared = (time.perf_counter() - t0 - sum(spent)) / len(cams)
     return [(replace(d.result, stats={**d.result.stats, **d.stats()}), spent[k] + shared) for k, d in enumerate(done)]
 

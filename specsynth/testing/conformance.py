@@ -394,8 +394,24 @@ def check_denoiser_guides(ctx: ConformanceContext) -> None:
                  "a denoising render must also return the render before its denoiser (RenderResult.noisy)")
         if res.guides is not None:
             _check_guides(ctx, backend, res)
+        if callable(getattr(backend, "denoise", None)):
+            _check_skipped_denoiser(ctx, backend, res)
     finally:
         backend.close()
+
+
+def _check_skipped_denoiser(ctx: ConformanceContext, backend, denoised: RenderResult) -> None:
+    """``render(..., skip_denoiser=True)`` (asked of a backend that offers ``denoise``, whose renders
+    the core denoises itself): the same render before the denoiser, as ``linear`` and ``noisy``,
+    with the same guides."""
+    res = backend.render(ctx.scenes.camera, QUALITY, SEED, skip_denoiser=True)
+    _require(res.guides is not None and res.noisy is not None and res.linear is not None, ctx.name,
+             "render(..., skip_denoiser=True) must return the render before the denoiser (linear and noisy) and its guides")
+    for name, got, want in (("linear", res.linear, denoised.noisy), ("noisy", res.noisy, denoised.noisy),
+                            ("guides", res.guides, denoised.guides)):
+        off = float(np.max(np.abs(np.asarray(got, np.float64) - want) / (1.0 + np.abs(want))))
+        _require(off <= 1e-4, ctx.name, f"render(..., skip_denoiser=True): its {name} is not the denoising render's "
+                 f"(off by up to {off:.3g} relative)")
 
 
 def check_sample_continuation(ctx: ConformanceContext) -> None:

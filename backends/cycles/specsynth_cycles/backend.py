@@ -336,7 +336,7 @@ class CyclesBackend:
             prefs.keyframe_new_interpolation_type = before
         sc.frame_set(f)
 
-    def _apply(self, ps: PathSettings, seed: int, offset: int = 0) -> None:
+    def _apply(self, ps: PathSettings, seed: int, offset: int = 0, skip_denoiser: bool = False) -> None:
         cy = self._bpy.context.scene.cycles
         # Samples offset..offset+n of the sequence: a render of offset + n samples of which only
         # the subset is traced (the sampler's sequence, tabulated Sobol, does not depend on the
@@ -350,7 +350,9 @@ class CyclesBackend:
         cy.diffuse_bounces = ps.diffuse_bounces
         cy.glossy_bounces = ps.glossy_bounces
         cy.transmission_bounces = ps.transmission_bounces
-        cy.use_denoising = ps.denoise
+        # skip_denoiser: the passes the denoiser takes, written without running it (measured:
+        # Combined is then the denoising render's Noisy Image, bit for bit, and the guides are its).
+        cy.use_denoising = ps.denoise and not skip_denoiser
         cy.denoising_prefilter = ps.denoise_prefilter
         cy.denoising_quality = ps.denoise_quality
         cy.use_adaptive_sampling = ps.adaptive_threshold is not None
@@ -377,7 +379,7 @@ class CyclesBackend:
             # ("Conflicting attributes ... pixelAspectRatio"), the interleaved one does not.
             im.use_exr_interleave = True
         r.use_persistent_data = self.options.persistent
-        key = (replace(ps, samples=0), self.threads, r.resolution_x, r.resolution_y)
+        key = (replace(ps, samples=0), skip_denoiser, self.threads, r.resolution_x, r.resolution_y)
         if key != self._last_settings:
             r.use_persistent_data = False  # dropped: a full sync of the changed settings
             r.use_persistent_data = self.options.persistent
@@ -413,9 +415,10 @@ class CyclesBackend:
         return self._scene_ir
 
     def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None,
-               sample_offset: int = 0) -> RenderResult:
+               sample_offset: int = 0, skip_denoiser: bool = False) -> RenderResult:
         """One view; ``sample_offset``: the samples from there on of the sequence ``seed`` starts
-        (Capabilities.continues_samples)."""
+        (Capabilities.continues_samples); ``skip_denoiser``: with denoising on, the render before
+        the denoiser and its guides, not denoised (the core denoises them, ``denoise``)."""
         scene = self._require_scene()
         budget = self.options.light_path_budget
         ps = path_settings(
@@ -424,10 +427,12 @@ class CyclesBackend:
         )
         t0 = time.perf_counter()
         self._set_camera(camera)
-        self._apply(ps, seed, int(sample_offset))
+        skip = bool(skip_denoiser) and ps.denoise
+        self._apply(ps, seed, int(sample_offset), skip)
         t_setup = time.perf_counter()
         passes = self._render_exr("beauty")
-        linear, noisy = passes["Combined"], passes.get("Noisy Image")
+        linear = passes["Combined"]
+        noisy = linear if skip else passes.get("Noisy Image")
         guides = None
         if noisy is not None and "Denoising Albedo" in passes and "Denoising Normal" in passes:
             guides = np.concatenate([passes["Denoising Albedo"], passes["Denoising Normal"]], axis=-1)

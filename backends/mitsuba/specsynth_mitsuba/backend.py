@@ -105,7 +105,10 @@ class MitsubaBackend:
             d["world"] = _sky_fallback(scene.world)
         self._scene = mi.load_dict(d)
 
-    def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None) -> RenderResult:
+    def render(self, camera: CameraIR, quality: QualityPreset, seed: int, *, clamp: float | None = None,
+               skip_denoiser: bool = False) -> RenderResult:
+        """One view; ``skip_denoiser``: with denoising on, the render before the denoiser and its
+        guides, not denoised (the core denoises them, ``denoise``)."""
         if self._scene is None:
             raise RuntimeError("MitsubaBackend.render() before load()")
         mi, dr = self._mi, self._dr
@@ -144,8 +147,9 @@ class MitsubaBackend:
             t1 = time.perf_counter()
             guide_seconds = t1 - t_read
             guides = np.ascontiguousarray(guides[..., 0:6], np.float32)
-            linear = self.denoise(linear, guides)
-            denoise_seconds = time.perf_counter() - t1
+            if not skip_denoiser:
+                linear = self.denoise(linear, guides)
+                denoise_seconds = time.perf_counter() - t1
         stats = {
             "variant": self.variant,
             "spp": st.spp,
