@@ -29,7 +29,7 @@ from .plugins import (  # the discovery half of the plugin API, re-exported
 )
 
 __all__ = ["RenderBackend", "BackendPlugin", "Capabilities", "PluginNotFound", "available_backends",
-           "backend_plugin", "load_backend", "load_executor"]
+           "backend_plugin", "load_backend", "load_executor", "render_takes"]
 from .spec.models import QualityPreset
 
 
@@ -57,4 +57,14 @@ class RenderBackend(Protocol):
     # own would be: under ``quality.control: error`` the core then denoises the samples of all of an
     # image's renders together (specsynth.model.error) instead of the last pair alone, and asks
     # each render for ``render(..., skip_denoiser=True)``: the render before its denoiser (as
-    # ``linear`` and ``noisy``) with its guides, the denoiser not run.
+    # ``linear`` and ``noisy``) with its guides, the denoiser not run (a ``render`` that does not
+    # take the keyword, written before it was added, is not given it: ``render_takes``).
+
+
+def render_takes(backend: Any, keyword: str) -> bool:
+    """The backend's ``render`` takes the optional keyword ``keyword`` (``sample_offset``,
+    ``skip_denoiser``): a backend written before it was added is not given it."""
+    import inspect
+
+    params = inspect.signature(backend.render).parameters
+    return keyword in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())

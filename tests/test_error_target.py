@@ -678,6 +678,74 @@ def test_targeted_renders_are_keyed_by_the_error_controls_revision(tmp_path, mon
     assert again.stage_digests["render"] != targeted.stage_digests["render"]
     assert {s: again.stage_digests[s] for s in ("arrange", "view")} == {s: targeted.stage_digests[s] for s in ("arrange", "view")}
     assert compile_spec(load_spec(f, ["quality.control=samples"])).stage_digests == plain.stage_digests
+    monkeypatch.setattr(error, "REVISION", error.REVISION - 1)
+    assert compile_spec(load_spec(f)).stage_digests == targeted.stage_digests
+
+
+def test_a_backend_that_continues_its_samples_keys_its_targeted_renders_apart(tmp_path, monkeypatch):
+    """Continued halves are another image than independent renders: the render key says which way."""
+    from dataclasses import replace
+
+    import specsynth.plan.compiler as compiler
+    from specsynth.plugins import backend_plugin
+    from specsynth.spec.yamlio import load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles"))
+    independent = compiler.compile_spec(load_spec(f))
+    cycles = backend_plugin("cycles")
+    continuing = replace(cycles, capabilities=replace(cycles.capabilities, continues_samples=True))
+    monkeypatch.setattr(compiler, "backend_plugin", lambda name: continuing if name == "cycles" else backend_plugin(name))
+    continued = compiler.compile_spec(load_spec(f))
+    assert continued.stage_digests["render"] != independent.stage_digests["render"]
+    assert {s: continued.stage_digests[s] for s in ("arrange", "view")} == {
+        s: independent.stage_digests[s] for s in ("arrange", "view")}
+
+
+def test_renders_that_skipped_their_denoiser_are_never_kept_as_a_denoised_pair():
+    """A render that skipped its denoiser (noisy is linear) and has no guides for the core: the
+    image is the raw mean, not the last pair labelled denoised."""
+    mu = scene(2)[::4, ::4]
+    r = NoisyRenderer(mu, 1.0, 3)
+
+    def skipped(n: int, i: int) -> RenderResult:
+        res = r(n, i)
+        return RenderResult(res.rgb, res.linear, res.stats, noisy=res.linear)
+
+    done = render_to_target(skipped, ErrorTarget(225, 2, 900), linear_to_srgb8, denoise=box3)
+    assert not done.denoised and done.image_samples == done.samples
+    assert done.history == []  # no step planned for a denoised way that is not there
+
+
+def test_a_backend_is_given_only_the_render_keywords_it_takes():
+    """skip_denoiser goes to a backend whose render takes it; one written before it was added (it
+    offers denoise() but its render knows no such keyword) renders to its target all the same."""
+    from specsynth.run.render import draw_to_target
+    from specsynth.spec.models import PAPER_PRESETS
+
+    mu = scene(3)[::4, ::4]
+
+    class Old:
+        def __init__(self):
+            self.r, self.skipped = GuidedRenderer(mu, 1.0, 4), []
+
+        def render(self, camera, quality, seed, *, clamp=None):
+            return self.r(quality.aa, seed % 1000)
+
+        def denoise(self, linear, guides):
+            return blur(linear, 3)
+
+    class New(Old):
+        def render(self, camera, quality, seed, *, clamp=None, skip_denoiser=False):
+            self.skipped.append(skip_denoiser)
+            res = super().render(camera, quality, seed, clamp=clamp)
+            return RenderResult(res.rgb, res.noisy, res.stats, noisy=res.noisy, guides=res.guides) if skip_denoiser else res
+
+    for cls in (Old, New):
+        backend = cls()
+        [(res, _)] = draw_to_target(backend, [None], PAPER_PRESETS["high"], 5, ErrorTarget(225, 2, 64), None)
+        assert res.stats["samples"] <= 64 and res.linear.shape == mu.shape
+    assert backend.skipped and all(backend.skipped)
 
 
 @pytest.mark.slow

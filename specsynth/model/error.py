@@ -35,7 +35,7 @@ EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not d
 # 3: the target from the sampler's convergence rate measured on the image (not 1 / samples).
 # 4: with a backend's denoise and guides, the halves of every sample spent denoised together.
 # (A backend that continues a render's samples, Capabilities.continues_samples, takes another
-# way, which its own plugin's revision keys: the images of the others are as at 4.)
+# way, which the render key names beside the revision: the images of the others are as at 4.)
 REVISION = 4
 # The fastest fall of one render's variance with its samples that a target assumes: measured
 # rates above it are noise or a few-sample start (a stratified sampler is at most ~N^-1.5 on
@@ -278,7 +278,8 @@ def _denoised_halves(raw: _Raw, pair: list[RenderResult] | None, took: list[int]
         a, b = raw.halves()
         d_a, d_b = (denoise(h.astype(np.float32), g) for h, g in ((a, guides[0]), (b, guides[1])))
         return d_a, d_b, a, b, sum(raw.counts)
-    if pair is not None and pair[0].noisy is not None:
+    # (A render that skipped its denoiser, RenderBackend.denoise, is its noisy image: not this way.)
+    if pair is not None and pair[0].noisy is not None and not np.array_equal(pair[0].linear, pair[0].noisy):
         return pair[0].linear, pair[1].linear, pair[0].noisy, pair[1].noisy, sum(took)
     return None
 
@@ -375,7 +376,7 @@ def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[in
         n_next = max(n + 1, den_need // 2) if den_step else max(1, math.ceil(raw_need / 2))
     if any(image.unmeasured() for image in images):
         n_next = max(n_next, 2 * n)
-    if target.continues:  # a step more costs a render's overhead, no samples: each half grows at most 4x
+    if target.continues:  # a step more costs a render's overhead, no samples: each half grows ~4x at most (before rounding)
         n_next = min(n_next, max(2 * n, 3 * spent // 2))
     return target.per_render(sample_step(n_next), target.max_samples - spent), den_step
 
@@ -388,7 +389,8 @@ class _Progress:
         self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
         self.spent, self.paper, self.rate, self.candidates = 0, 0.0, None, []
         self.continues = continues  # each half is one render continued (ErrorTarget.continues)
-        self.pairs: list[tuple[int, np.ndarray]] = []  # (samples per render, the raw renders' squared difference)
+        # (samples per render, the raw renders' squared difference); continued: (each half's samples, the halves')
+        self.pairs: list[tuple[int, np.ndarray]] = []
         self.denoise: Denoise | None = None  # set when the core denoises the halves (``evaluate``)
         self._pair: tuple[list[RenderResult], list[int]] | None = None
 

@@ -325,7 +325,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
              "render": {"backend": backend, "products": product_fingerprints(inputs.render),
                         **_input_folders(spec, loaded)}}
     if spec.quality.control == "error":  # only these renders are the error control's
-        extra["render"]["error_control"] = f"revision {error_control.REVISION}"
+        way = ", continued halves" if backend_plugin(spec.backend.name).capabilities.continues_samples else ""
+        extra["render"]["error_control"] = f"revision {error_control.REVISION}{way}"
     # A stage's key: the digest of its whole inputs model, and what it reads besides the spec.
     stage_digests = {s: keys.stage_digest(s, {"inputs": keys.digest(getattr(inputs, s).model_dump(mode="json")),
                                               **extra[s]}) for s in STAGES}

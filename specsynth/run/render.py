@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
+from ..backend_api import render_takes
 from ..model import lens
 from ..model.colour import check_finite, linear_to_srgb8
 from ..model.error import ErrorTarget, render_group_to_target
@@ -333,7 +334,7 @@ def draw_to_target(backend, cams: Sequence[CameraIR], preset, seed: int, target:
     # A backend that can denoise an image of its own kind (RenderBackend.denoise) gets every sample
     # spent denoised together, not only the last pair: its renders skip their own denoiser.
     denoise = getattr(backend, "denoise", None)
-    skip = {"skip_denoiser": True} if denoise is not None else {}
+    skip = {"skip_denoiser": True} if denoise is not None and render_takes(backend, "skip_denoiser") else {}
 
     def drawer(k: int) -> Callable[..., RenderResult]:
         def one(samples: int, i: int, offset: int = 0) -> RenderResult:

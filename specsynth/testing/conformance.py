@@ -31,7 +31,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..assets.meshio import MeshData, mesh_bytes, write_mesh
-from ..backend_api import RenderBackend
+from ..backend_api import RenderBackend, render_takes
 from ..model.colour import check_finite
 from ..model.ir import (
     CameraIR,
@@ -394,7 +394,7 @@ def check_denoiser_guides(ctx: ConformanceContext) -> None:
                  "a denoising render must also return the render before its denoiser (RenderResult.noisy)")
         if res.guides is not None:
             _check_guides(ctx, backend, res)
-        if callable(getattr(backend, "denoise", None)):
+        if callable(getattr(backend, "denoise", None)) and render_takes(backend, "skip_denoiser"):
             _check_skipped_denoiser(ctx, backend, res)
     finally:
         backend.close()
