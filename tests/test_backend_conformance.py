@@ -137,19 +137,23 @@ def _denoising_variants():
     return Denoising, DenoisesAnyway
 
 
-@pytest.mark.parametrize("variant, passes", [(0, True), (1, False)], ids=["skips-its-denoiser", "denoises-anyway"])
-def test_a_render_that_skips_its_denoiser_is_checked(tmp_path, variant, passes):
-    cls = _denoising_variants()[variant]
-    claims = replace(backend_plugin("flat").capabilities, denoise=True)
-    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=cls, capabilities=claims)
+def _check_variant(tmp_path, cls, check: str, passes: bool, match: str | None = None, **claims) -> None:
+    """Run one check on a flat variant that claims ``claims``: it passes, or fails with ``match``."""
+    caps = replace(backend_plugin("flat").capabilities, **claims)
+    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=cls, capabilities=caps)
     try:
         if passes:
-            CHECKS["denoiser_guides"](context)
+            CHECKS[check](context)
         else:
-            with pytest.raises(ConformanceError, match="skip_denoiser"):
-                CHECKS["denoiser_guides"](context)
+            with pytest.raises(ConformanceError, match=match):
+                CHECKS[check](context)
     finally:
         context.close()
+
+
+@pytest.mark.parametrize("variant, passes", [(0, True), (1, False)], ids=["skips-its-denoiser", "denoises-anyway"])
+def test_a_render_that_skips_its_denoiser_is_checked(tmp_path, variant, passes):
+    _check_variant(tmp_path, _denoising_variants()[variant], "denoiser_guides", passes, "skip_denoiser", denoise=True)
 
 
 def _continuing_variants():
@@ -179,17 +183,7 @@ def _continuing_variants():
 @pytest.mark.parametrize("variant, passes", [(0, True), (1, False), (2, False)],
                          ids=["continues", "ignores-the-offset", "restarts-each-range"])
 def test_sample_continuation_is_checked(tmp_path, variant, passes):
-    cls = _continuing_variants()[variant]
-    claims = replace(backend_plugin("flat").capabilities, continues_samples=True)
-    context = ConformanceContext("flat", {"name": "flat"}, tmp_path, backend_class=cls, capabilities=claims)
-    try:
-        if passes:
-            CHECKS["sample_continuation"](context)
-        else:
-            with pytest.raises(ConformanceError):
-                CHECKS["sample_continuation"](context)
-    finally:
-        context.close()
+    _check_variant(tmp_path, _continuing_variants()[variant], "sample_continuation", passes, continues_samples=True)
 
 
 # --------------------------------------------------------------------------- the slow mark tells the truth
