@@ -16,10 +16,21 @@ from dataclasses import replace
 import numpy as np
 
 from specsynth.compare import distance as dist
-from specsynth.compare.collect import collect
+from specsynth.compare.collect import Collected, collect
 from specsynth.compare.comparison import STATISTICS, _column, compare
 from specsynth.compare.gtinfo import complete
 from specsynth.compare.split import open_split
+
+
+SPLITS = {"interleaved": lambda i, n: i % 2 == 0, "halves": lambda i, n: i < n // 2}  # True: an image of the first part
+
+
+def _part(c: Collected, first, side: bool) -> Collected:
+    """One part of ``c``: the images ``first`` puts on ``side``, with their instances and objects."""
+    keep = first(np.arange(c.n_images), c.n_images) == side
+    return replace(c, images={k: v[keep] for k, v in c.images.items()},
+                   instances={k: v[keep[c.instances["image"]]] for k, v in c.instances.items()},
+                   objects={k: v[keep[c.objects["image"]]] for k, v in c.objects.items()}, n_images=int(keep.sum()))
 
 
 def main() -> None:
@@ -32,9 +43,7 @@ def main() -> None:
     for name in STATISTICS:
         s = dist.summary(_column(whole, name))
         print(f"| `{name}` | {s['median']:.3g} | {s['p5']:.3g} - {s['p95']:.3g} |")
-    ims = real.images
-    parts = {"interleaved": (ims[0::2], ims[1::2]), "halves": (ims[: len(ims) // 2], ims[len(ims) // 2:])}
-    measured = {k: (collect(replace(real, images=a)), collect(replace(real, images=b))) for k, (a, b) in parts.items()}
+    measured = {k: (_part(whole, first, True), _part(whole, first, False)) for k, first in SPLITS.items()}
     print("\n| statistic | interleaved | halves |\n|---|---|---|")
     rows = {k: compare(a, b)["statistics"] for k, (a, b) in measured.items()}
     for name in STATISTICS:

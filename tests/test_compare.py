@@ -211,6 +211,36 @@ def test_sharpness_of_a_blurred_step_is_its_analytic_value(sigma):
     assert imagestats.sharpness(gaussian_filter(step, sigma).astype(np.float32)) == pytest.approx(expected, rel=0.04)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.16, 0.4), st.floats(0.25, 0.45), st.floats(0.05, 1.0), st.floats(0.0, 2.0), st.booleans())
+def test_halo_is_the_overshoot_an_unsharp_mask_draws_and_nothing_for_a_blur(lo, step, amount, sigma, across):
+    """A grey step (either orientation) is clean or blurred: no halo. Sharpened by an unsharp mask
+    of ``amount`` (Gaussian of 1 px), the pixel on either side of the edge moves by amount x (the
+    step minus its blur there), half a step less the centre weight of the sampled Gaussian: 0.3005
+    of the step each, 0.601 x amount together (the levels keep it in [0, 1]: nothing clips). The
+    outer rings, where the edge crosses them, hold some of that fringe, which moves their 10th and
+    90th percentiles toward it: the halo reads 0.44-0.49 x amount, and grows with it."""
+    from scipy.ndimage import gaussian_filter
+
+    from specsynth.views.sensor import sharpen
+
+    grey = np.full((60, 80), lo)
+    grey[:, 40:] += step
+    grey = grey if across else grey.T.copy()
+    blurred = gaussian_filter(grey, sigma) if sigma > 0 else grey
+    assert imagestats.halo(blurred.astype(np.float32)) == pytest.approx(0.0, abs=1e-6)
+    halos = [imagestats.halo(sharpen(np.repeat(grey[..., None], 3, -1), a)[..., 0].astype(np.float32))
+             for a in (amount, 1.1 * amount)]
+    assert 0.44 * amount <= halos[0] <= 0.601 * amount and halos[1] > halos[0]
+
+
+def test_halo_is_not_measured_without_strong_edges():
+    assert np.isnan(imagestats.halo(np.full((40, 40), 0.5, np.float32)))
+    faint = np.full((40, 40), 0.5, np.float32)
+    faint[:, 20:] += 0.1  # a step below HALO_MIN_STEP
+    assert np.isnan(imagestats.halo(faint))
+
+
 def test_flat_grey_has_no_colour_no_edges_no_texture():
     grey = np.full((96, 128, 3), 120, np.uint8)
     s = imagestats.image_stats(grey)

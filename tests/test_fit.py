@@ -56,8 +56,35 @@ def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
     blur_lo, blur_hi = edits["sensor.blur"].value
     assert 0.9 < (blur_lo + blur_hi) / 2 < 1.5
     assert 0.012 < edits["sensor.shot_noise"].value < 0.028
+    assert edits["sensor.sharpening"].value == 0.0  # blurred, the 'real' side has no halos
     assert edits["outputs.image_format"].value == "png"
     assert all(e.comment.startswith("fit: ") for e in edits.values())
+
+
+def _dead_leaves(seed: int, h: int = 240, w: int = 320, n: int = 400) -> np.ndarray:
+    """A dead-leaves chart (overlapping discs of random colours, linear RGB), as camera sharpness is
+    tested with: steps of every contrast, perfectly sharp and without halos."""
+    rng = np.random.default_rng(seed)
+    im = np.zeros((h, w, 3))
+    yy, xx = np.mgrid[0:h, 0:w]
+    for _ in range(n):
+        r, cy, cx = rng.uniform(4, 40), rng.uniform(0, h), rng.uniform(0, w)
+        im[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.uniform(0.02, 0.9, 3)
+    return im
+
+
+def test_a_known_cameras_sharpening_is_fitted_back_with_its_blur():
+    """Dead-leaves charts through a camera that blurs by 0.7 px and sharpens by 1.0 are the 'real'
+    side, the charts themselves the probe: the fit finds that sharpening among its steps and the
+    blur (which takes halos away as sharpening adds them: the two are searched in turn)."""
+    from specsynth.views.sensor import process
+
+    charts = [_dead_leaves(k) for k in range(5)]
+    made = [process(gaussian_filter(c, sigma=(0.7, 0.7, 0), mode="mirror"), sharpening=1.0) for c in charts]
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), [process(c) for c in charts], "test", None, seed=1)[0]}
+    assert edits["sensor.sharpening"].value == 1.0
+    blur_lo, blur_hi = edits["sensor.blur"].value
+    assert 0.6 < (blur_lo + blur_hi) / 2 < 0.8
 
 
 def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise(real_photos):
@@ -66,6 +93,7 @@ def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise
     lo, hi = edits["sensor.exposure"].value
     assert abs((lo + hi) / 2) < 0.1
     assert edits["sensor.contrast"].value < 1.05 and abs(edits["sensor.saturation"].value - 1.0) < 0.05
+    assert edits["sensor.sharpening"].value == 0.0
     assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
 
 
@@ -104,7 +132,8 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
     fitted = load_spec(out, []).spec.model_dump(mode="json")
     original = load_spec(spec, []).spec.model_dump(mode="json")
     edited = {"cameras": {"distance", "elevation", "elevation_sampling", "inplane"}, "visibility": {"threshold"},
-              "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation"}, "outputs": {"image_format"}}
+              "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation", "sharpening"},
+              "outputs": {"image_format"}}
     for section, value in original.items():
         keep = {k: v for k, v in value.items() if k not in edited.get(section, ())} if isinstance(value, dict) else value
         got = {k: v for k, v in fitted[section].items() if k not in edited.get(section, ())} if isinstance(value, dict) \
@@ -217,3 +246,19 @@ def test_an_object_rendered_too_dark_gets_the_colour_gain_that_undoes_it():
     again = fit.object_edits(real, probe, fit.Camera(), {"9": {"color_gain": (2.0, 2.0, 1.0)}}, "t")  # on top of it
     np.testing.assert_allclose({e.field: e.value for e in again}["objects.materials.9"]["color_gain"][:2],
                                2.0 * np.array(by["objects.materials.9"]["color_gain"][:2]), rtol=1e-3)
+
+
+def test_a_halo_out_of_reach_gets_the_sharpening_at_its_peak():
+    """A target no sharpening reaches (the real halo above anything the probe can show): the fit
+    takes the step where the probe's halo peaks, not the strongest step."""
+    from specsynth.views.sensor import process
+
+    lin = [_dead_leaves(k, 120, 160, 100) for k in range(3)]  # sharp: its halo peaks before 3 (measured: at 2.25)
+    normals = [np.zeros_like(x) for x in lin]
+    cam = fit.Camera()
+    v = fit._sharpening(lin, cam, 10.0, normals)
+
+    def halo_at(a: float) -> float:
+        return float(np.median([fit._stat("halo", process(x, sharpening=a)) for x in lin]))
+    assert 0.0 < v < fit.SHARPENING_STEPS[-1]
+    assert halo_at(v) >= halo_at(0.0) and halo_at(v) >= halo_at(v + 0.25)

@@ -264,3 +264,37 @@ def test_the_camera_processing_is_the_plain_encoding_when_neutral():
     x = np.random.default_rng(0).uniform(0, 1.2, (8, 8, 3)).astype(np.float32)
     np.testing.assert_array_equal(process(x), linear_to_srgb8(x))
     assert process(x, 1.0, 1.5).std() > process(x).std()  # more contrast spreads the values
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.0, 2.0), st.integers(0, 2**32 - 1))
+def test_sharpening_moves_every_channel_by_the_luma_detail_and_leaves_flat_colour(amount, seed):
+    """The unsharp mask adds one luma difference to every channel: chroma (R - G, B - G) is kept
+    wherever nothing clips, a flat colour is unchanged, and 0 is the identity."""
+    from scipy.ndimage import gaussian_filter
+
+    from specsynth.views.sensor import SHARPEN_SIGMA, sharpen
+
+    rng = np.random.default_rng(seed)
+    v = 0.3 + 0.4 * gaussian_filter(rng.uniform(0, 1, (24, 32, 3)), (1.5, 1.5, 0))  # in [0.3, 0.7]: no clipping
+    out = sharpen(v, amount)
+    y = v @ REC709_LUMA
+    detail = y - gaussian_filter(y, SHARPEN_SIGMA, mode="mirror")
+    np.testing.assert_allclose(out - v, np.repeat(amount * detail[..., None], 3, -1), atol=1e-12)
+    np.testing.assert_array_equal(sharpen(v, 0.0), v)
+    flat = np.full((8, 8, 3), [0.2, 0.5, 0.4])
+    np.testing.assert_allclose(sharpen(flat, amount), flat, atol=1e-12)
+
+
+def test_sharpening_is_part_of_the_camera_processing_and_of_the_sensor():
+    from specsynth.views.sensor import process
+
+    step = np.full((20, 20, 3), 0.05, np.float32)
+    step[:, 10:] = 0.5
+    plain, sharp = process(step).astype(int), process(step, sharpening=1.0).astype(int)
+    assert sharp[:, 9].max() < plain[:, 9].min() and sharp[:, 10].min() > plain[:, 10].max()  # dark and bright halos
+    np.testing.assert_array_equal(sharp[:, :5], plain[:, :5])  # away from the edge, unchanged
+    assert Sensor(sharpening=0.5).affects_rgb and not Sensor().affects_rgb
+    rgb8 = linear_to_srgb8(step)
+    out = sensor_rgb(step, rgb8, Sensor(sharpening=1.0), np.random.default_rng(0))
+    np.testing.assert_array_equal(out, sharp.astype(np.uint8))

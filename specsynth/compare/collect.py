@@ -38,7 +38,7 @@ class Collected:
     images: dict[str, np.ndarray] = field(default_factory=dict)  # IMAGE_STATS + inplane, instances
     # obj_id + INSTANCE_STATS, and where each instance is: its image's row and its centre offset
     instances: dict[str, np.ndarray] = field(default_factory=dict)
-    objects: dict[str, np.ndarray] = field(default_factory=dict)  # obj_id + OBJECT_STATS
+    objects: dict[str, np.ndarray] = field(default_factory=dict)  # obj_id + OBJECT_STATS, and its image's row
     up: str = "world"  # how the scene's up was known: "world" (cam_R_w2c) or "objects"
     n_images: int = 0
     samples: list[str] = field(default_factory=list)  # image files picked for the sheet
@@ -144,7 +144,7 @@ def collect(split: Split, jobs: int = 0, max_object_images: int = MAX_OBJECT_IMA
     jobs = jobs or min(len(os.sched_getaffinity(0)), 8)
     out = Collected(n_images=n, up="world" if split.synthetic else "objects")
     images: dict[str, list] = {k: [] for k in (*IMAGE_STATS, "inplane", "instances")}
-    inst, obj, per_image = array("d"), array("d"), []  # 8 bytes a number, not a Python float
+    inst, obj, per_image, obj_per_image = array("d"), array("d"), [], []  # 8 bytes a number, not a Python float
     for r in _rows(_batches(split, step, picks, out.samples), split.synthetic, jobs if n > CHUNK else 1):
         for k in IMAGE_STATS:
             images[k].append(r["image"][k])
@@ -155,11 +155,13 @@ def collect(split: Split, jobs: int = 0, max_object_images: int = MAX_OBJECT_IMA
         for t in r["objects"]:
             obj.extend(t)
         per_image.append(len(r["instances"]))
+        obj_per_image.append(len(r["objects"]))
     out.images = {k: np.array(v, np.float64) for k, v in images.items()}
     cols = INSTANCE_STATS + INSTANCE_PLACE
     a = np.frombuffer(inst, np.float64).copy().reshape(-1, 1 + len(cols))
     out.instances = {"obj_id": a[:, 0].astype(int), **{k: a[:, 1 + i] for i, k in enumerate(cols)},
                      "image": np.repeat(np.arange(len(per_image)), per_image)}
     b = np.frombuffer(obj, np.float64).copy().reshape(-1, 1 + len(OBJECT_STATS))
-    out.objects = {"obj_id": b[:, 0].astype(int), **{k: b[:, 1 + i] for i, k in enumerate(OBJECT_STATS)}}
+    out.objects = {"obj_id": b[:, 0].astype(int), **{k: b[:, 1 + i] for i, k in enumerate(OBJECT_STATS)},
+                   "image": np.repeat(np.arange(len(obj_per_image)), obj_per_image)}
     return out

@@ -22,6 +22,7 @@ STATISTICS: dict[str, tuple[str, str, str, str]] = {
     "colourfulness": ("appearance", "images", "", "colourfulness (Hasler-Suesstrunk)"),
     "saturation": ("appearance", "images", "", "mean HSV saturation"),
     "sharpness": ("appearance", "images", "", "edge sharpness (0.5 = a one-pixel step)"),
+    "halo": ("appearance", "images", "", "sharpening halos: overshoot at the strongest edges"),
     "noise": ("appearance", "images", "levels", "noise std (8-bit levels)"),
     "edge_density": ("appearance", "images", "", "clutter: share of edge pixels"),
     "texture_density": ("appearance", "images", "", "clutter: share of textured tiles"),

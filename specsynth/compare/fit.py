@@ -23,7 +23,7 @@ import numpy as np
 from ..views.cameras import elevation_on_area
 from .collect import Collected
 from .distance import spread, summary
-from .imagestats import (MIN_OBJECT_PIXELS, colourfulness, half_rgb8, lab_of_linear, linear_of_lab, luma, noise_level,
+from .imagestats import (MIN_OBJECT_PIXELS, colourfulness, half_rgb8, halo, lab_of_linear, linear_of_lab, luma, noise_level,
                          percentiles, saturation, sharpness, srgb8_to_linear)
 
 VISIB_QUANTILE = 10
@@ -108,13 +108,15 @@ def geometry_edits(real: Collected, source: str) -> list[Edit]:
 @dataclass
 class Camera:
     """The sensor settings a fit searches, applied to a probe as ``views.sensor`` applies them:
-    exposure, blur, shot noise in linear light, then saturation, the sRGB encoding and the tone curve."""
+    exposure, blur, shot noise in linear light, then saturation, the sRGB encoding, the tone curve
+    and sharpening."""
 
     stops: float = 0.0
     contrast: float = 1.0
     saturation: float = 1.0
     sigma: float = 0.0
     shot: float = 0.0
+    sharpening: float = 0.0
 
     def develop(self, x: np.ndarray, normal: np.ndarray | None = None) -> np.ndarray:
         from ..views.sensor import blur, process
@@ -124,7 +126,7 @@ class Camera:
             y = blur(y, self.sigma)
         if self.shot > 0 and normal is not None:
             y = y + self.shot * np.sqrt(np.maximum(y, 0.0)) * normal
-        return process(np.clip(y, 0.0, None), self.saturation, self.contrast)
+        return process(np.clip(y, 0.0, None), self.saturation, self.contrast, self.sharpening)
 
 
 def _median(values) -> float:
@@ -162,6 +164,8 @@ def _stat(name: str, rgb8: np.ndarray) -> float:
         return colourfulness(half_rgb8(rgb8).astype(np.float32) / np.float32(255.0))
     if name == "sharpness":
         return sharpness(luma(rgb8))
+    if name == "halo":
+        return halo(luma(rgb8))
     return noise_level(luma(rgb8))
 
 
@@ -172,6 +176,29 @@ def _search(lin, cam: Camera, field: str, stat: str, lo: float, hi: float, targe
         c = replace(cam, **{field: v})
         return _median([_stat(stat, c.develop(x, n)) for x, n in zip(lin, normals or [None] * len(lin))])
     return _bisect(median_at, lo, hi, target, increasing)
+
+
+# Sharpening amounts a fit tries, and how close to the real halo counts as there. A halo grows with
+# the amount only so far (it clips at black and white), and blur and sharpening trade against each
+# other: the fit takes the least sharpening that reaches the real halo.
+SHARPENING_STEPS = tuple(float(v) for v in np.round(np.arange(0.0, 3.01, 0.25), 2))
+HALO_TOLERANCE = 0.01
+
+
+def _sharpening(lin, cam: Camera, target: float, normals) -> float:
+    """0 when the unsharpened probe's median halo is within ``HALO_TOLERANCE`` of ``target`` or above
+    it; else the first of ``SHARPENING_STEPS`` whose probe median halo reaches ``target``, or the
+    step before it when that one is nearer; the step with the largest halo when none does (the
+    steps stop once the halo falls: past its peak, more sharpening clips more of it)."""
+    tried: list[tuple[float, float]] = []
+    for v in SHARPENING_STEPS:
+        h = _median([_stat("halo", replace(cam, sharpening=v).develop(x, n)) for x, n in zip(lin, normals)])
+        if h >= target - (HALO_TOLERANCE if v == 0 else 0.0):
+            return tried[-1][0] if tried and abs(tried[-1][1] - target) < abs(h - target) else v
+        if tried and h < tried[-1][1]:
+            break
+        tried.append((v, h))
+    return max(tried, key=lambda t: t[1])[0]
 
 
 COLOUR_STATS = ("saturation", "colourfulness")
@@ -216,7 +243,7 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
     probe's medians to the real ones, and the real images' format -> (the edits, the camera found,
     whose exposure is relative to the probe's ``probe_stops``)."""
     lin = [srgb8_to_linear(p) for p in probe_rgb8]
-    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "noise")}
+    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "halo", "noise")}
     normals = [np.random.default_rng([seed, k]).standard_normal(x.shape) for k, x in enumerate(lin)]
     cam = Camera()
     for _ in range(2):  # each setting moves the others' statistics a little: a second pass settles them
@@ -224,10 +251,15 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
             cam.stops = _search(lin, cam, "stops", "brightness", -5.0, 5.0, t["brightness"], True, normals)
             cam.contrast = _search(lin, cam, "contrast", "contrast", 1.0, 3.0, t["contrast"], True, normals)
         cam.saturation = _bisect(_colour_offset(lin, cam, real, normals), 0.5, 2.5, 0.0, True)
-        probe_s = _median([_stat("sharpness", replace(cam, sigma=0.0).develop(x, n)) for x, n in zip(lin, normals)])
-        cam.sigma = 0.0
-        if probe_s > t["sharpness"] * (1.0 + SHARPNESS_TOLERANCE):
-            cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
+        # Sharpening, then the blur that brings the sharpened edges to the real width; in turn,
+        # twice: blur takes halos away, sharpening steepens edges.
+        for _ in range(2 if np.isfinite(t["halo"]) else 1):
+            if np.isfinite(t["halo"]):
+                cam.sharpening = _sharpening(lin, cam, t["halo"], normals)
+            probe_s = _median([_stat("sharpness", replace(cam, sigma=0.0).develop(x, n)) for x, n in zip(lin, normals)])
+            cam.sigma = 0.0
+            if probe_s > t["sharpness"] * (1.0 + SHARPNESS_TOLERANCE):
+                cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
         probe_n = _median([_stat("noise", replace(cam, shot=0.0).develop(x)) for x in lin])
         cam.shot = _search(lin, cam, "shot", "noise", 0.0, 0.2, t["noise"], True, normals) if probe_n < t["noise"] else 0.0
     return _edits(real, lin, cam, probe_s, probe_n, t, real_format, probe_stops), cam
@@ -253,6 +285,10 @@ def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t:
         Edit("sensor.shot_noise", round(cam.shot, 4),
              f"fit: real noise median {t['noise']:.2f} levels, the probe's {probe_n:.2f}"),
     ]
+    if np.isfinite(t["halo"]):
+        probe_halo = _median([_stat("halo", cam.develop(x)) for x in lin])
+        out.append(Edit("sensor.sharpening", cam.sharpening,
+                        f"fit: real sharpening halo median {t['halo']:.3f}, the probe's {probe_halo:.3f}"))
     if real_format == "png":
         out.append(Edit("outputs.image_format", "png", "fit: the real images are PNG (lossless)"))
     return out

@@ -685,6 +685,10 @@ class Sensor(Strict):
                             "image: the S-curve v^k / (v^k + (1 - v)^k) with k = contrast (1: none), which darkens "
                             "shadows and brightens highlights around mid-grey as a camera's image processor does. "
                             "`specsynth fit` sets it from real photographs.")
+    sharpening: float = Field(0.0, ge=0.0, le=4.0, description="The camera's sharpening, last in its processing: an "
+                              "unsharp mask of this amount on the encoded image's luma (a Gaussian of 1 pixel), "
+                              "which draws dark and bright halos along edges as real cameras' image processors do "
+                              "(0: none). `specsynth fit` sets it from real photographs' halos.")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")
     depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
@@ -700,7 +704,7 @@ class Sensor(Strict):
     def affects_rgb(self) -> bool:
         return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance
                     or self.auto_white_balance or self.auto_exposure or (self.blur and self.blur[1] > 0)
-                    or self.saturation != 1.0 or self.contrast != 1.0)
+                    or self.saturation != 1.0 or self.contrast != 1.0 or self.sharpening > 0)
 
 
 # --------------------------------------------------------------------------- outputs

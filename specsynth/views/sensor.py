@@ -5,7 +5,7 @@ albedo: what a camera's AWB estimates, here known exactly) and auto exposure met
 middle grey; then exposure and white-balance errors scale the linear radiance, the optics blur it,
 then shot noise (std proportional to the square root of the signal) and read noise (constant std) are added, all
 in linear units, as in a real camera's raw pipeline; the camera's processing then sets the colour
-saturation, encodes sRGB and applies its tone curve. Depth: a structured-
+saturation, encodes sRGB, applies its tone curve and sharpens. Depth: a structured-
 light sensor's errors on a copy of the exact depth (axial noise growing with z², holes at depth
 jumps, random dropout, quantisation). Every draw comes from the generator passed in, which the
 caller seeds from the render job: the same job gives the same noise on every machine.
@@ -76,7 +76,7 @@ def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng:
         x = blur(x, float(rng.uniform(*sensor.blur)))
     noise_std = np.sqrt(sensor.shot_noise ** 2 * x + sensor.read_noise ** 2)
     x = x + noise_std * noise
-    return process(np.clip(x, 0.0, None), sensor.saturation, sensor.contrast)
+    return process(np.clip(x, 0.0, None), sensor.saturation, sensor.contrast, sensor.sharpening)
 
 
 def saturate(x: np.ndarray, factor: float) -> np.ndarray:
@@ -96,14 +96,29 @@ def tone_curve(v: np.ndarray, k: float) -> np.ndarray:
     return a / (a + np.power(np.clip(1.0 - v, 0.0, 1.0), k))
 
 
-def process(linear: np.ndarray, saturation: float = 1.0, contrast: float = 1.0) -> np.ndarray:
+SHARPEN_SIGMA = 1.0  # pixels: the unsharp mask's Gaussian (a camera's sharpening halo is 1-2 pixels wide)
+
+
+def sharpen(v: np.ndarray, amount: float) -> np.ndarray:
+    """An unsharp mask on encoded values' luma, as a camera's image processor sharpens: each channel
+    moved by ``amount`` times the luma's difference from its Gaussian blur (``SHARPEN_SIGMA``), so
+    edges get dark and bright halos and colours keep their hue; 0: unchanged."""
+    if amount <= 0:
+        return v
+    from scipy.ndimage import gaussian_filter
+
+    y = np.asarray(v, np.float64) @ REC709_LUMA
+    return np.clip(v + amount * (y - gaussian_filter(y, SHARPEN_SIGMA, mode="mirror"))[..., None], 0.0, 1.0)
+
+
+def process(linear: np.ndarray, saturation: float = 1.0, contrast: float = 1.0, sharpening: float = 0.0) -> np.ndarray:
     """The camera's processing of a linear image -> its 8-bit sRGB: saturation in linear light, the
-    sRGB encoding, then the tone curve on the encoded values."""
+    sRGB encoding, the tone curve on the encoded values, then sharpening."""
     x = saturate(np.asarray(linear, np.float64), saturation)
-    if contrast == 1.0:
+    if contrast == 1.0 and sharpening <= 0:
         return linear_to_srgb8(x.astype(np.float32))
     v = tone_curve(linear_to_srgb(x.astype(np.float32)).astype(np.float64), contrast)
-    return np.round(v * 255.0).astype(np.uint8)
+    return np.round(sharpen(v, sharpening) * 255.0).astype(np.uint8)
 
 
 def blur(x: np.ndarray, sigma: float) -> np.ndarray:
