@@ -576,6 +576,16 @@ def _same_models(loaded, real_models: Path | None) -> set[int]:
 REPROBES = 2  # probes rendered again at the exposure found, at most (each costs what the first did)
 
 
+def probe_overrides(edits, arrangements: int, exposure: float) -> list[str]:
+    """The ``--set``s of a fit's probe: the edits so far, four views per arrangement, and a neutral
+    sensor (every operation the fit searches undone; auto exposure and white balance kept) at
+    ``exposure`` stops, written losslessly."""
+    return [f"{e.field}={json.dumps(e.value)}" for e in edits] + [
+        f"arrangements.count={arrangements}", "cameras.per_arrangement=4", f"sensor.exposure=[{exposure}, {exposure}]",
+        "sensor.contrast=1", "sensor.saturation=1", "sensor.sharpening=0",
+        "sensor.blur=null", "sensor.shot_noise=0", "sensor.read_noise=0", "outputs.image_format=png"]
+
+
 def _fit_probe(args, edits, log, exposure: float = 0.0) -> list:
     """The spec rendered small with the fitted cameras and a neutral sensor (at ``exposure``
     stops) -> its 8-bit images."""
@@ -587,11 +597,7 @@ def _fit_probe(args, edits, log, exposure: float = 0.0) -> list:
     from PIL import Image
 
     arrangements = max(1, -(-args.probe_images // 4))
-    sets = [f"{e.field}={json.dumps(e.value)}" for e in edits] + [
-        f"arrangements.count={arrangements}", "cameras.per_arrangement=4", f"sensor.exposure=[{exposure}, {exposure}]",
-        "sensor.contrast=1", "sensor.saturation=1",
-        "sensor.blur=null", "sensor.shot_noise=0", "sensor.read_noise=0", "outputs.image_format=png"]
-    loaded = load_spec(args.spec, sets)
+    loaded = load_spec(args.spec, probe_overrides(edits, arrangements, exposure))
     graph = compile_spec(loaded)
     out = cache_dir() / "fit-probes" / keys.digest(loaded.spec.model_dump(mode="json"))[:16]
     log(f"probe: {arrangements * 4} views of {args.spec} with the fitted cameras and a neutral sensor at {exposure:+.2f} "

@@ -262,3 +262,16 @@ def test_a_halo_out_of_reach_gets_the_sharpening_at_its_peak():
         return float(np.median([fit._stat("halo", process(x, sharpening=a)) for x in lin]))
     assert 0.0 < v < fit.SHARPENING_STEPS[-1]
     assert halo_at(v) >= halo_at(0.0) and halo_at(v) >= halo_at(v + 0.25)
+
+
+def test_the_probe_is_rendered_with_a_neutral_sensor_whatever_the_spec_sets():
+    """A spec fitted before (its sensor sharpens, blurs, adds noise) gets a probe without any of it:
+    the fit develops the probe itself, and would otherwise apply each operation twice."""
+    from specsynth.cli import probe_overrides
+
+    spec = load_spec(ROOT / "specs" / "lmo_pbr_h.yaml", []).spec
+    assert spec.sensor.sharpening > 0 and spec.sensor.blur  # the shipped spec is a fitted one
+    sensor = load_spec(ROOT / "specs" / "lmo_pbr_h.yaml", probe_overrides([], 3, -1.0)).spec.sensor
+    assert (sensor.exposure, sensor.contrast, sensor.saturation, sensor.sharpening, sensor.blur,
+            sensor.shot_noise, sensor.read_noise) == ((-1.0, -1.0), 1.0, 1.0, 0.0, None, 0.0, 0.0)
+    assert sensor.auto_exposure and sensor.auto_white_balance  # as the spec asks: the real camera's

@@ -262,11 +262,11 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
                 cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
         probe_n = _median([_stat("noise", replace(cam, shot=0.0).develop(x)) for x in lin])
         cam.shot = _search(lin, cam, "shot", "noise", 0.0, 0.2, t["noise"], True, normals) if probe_n < t["noise"] else 0.0
-    return _edits(real, lin, cam, probe_s, probe_n, t, real_format, probe_stops), cam
+    return _edits(real, lin, cam, probe_s, probe_n, t, real_format, probe_stops, normals), cam
 
 
 def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t: dict, real_format,
-           probe_stops: float) -> list[Edit]:
+           probe_stops: float, normals) -> list[Edit]:
     real_b = summary(real.images["brightness"])
     width = _stops_spread(real_b) - _stops_spread(summary([_stat("brightness", cam.develop(x)) for x in lin]))
     half = round(max(0.0, width) / 2.0, 2)
@@ -286,7 +286,7 @@ def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t:
              f"fit: real noise median {t['noise']:.2f} levels, the probe's {probe_n:.2f}"),
     ]
     if np.isfinite(t["halo"]):
-        probe_halo = _median([_stat("halo", cam.develop(x)) for x in lin])
+        probe_halo = _median([_stat("halo", cam.develop(x, n)) for x, n in zip(lin, normals)])
         out.append(Edit("sensor.sharpening", cam.sharpening,
                         f"fit: real sharpening halo median {t['halo']:.3f}, the probe's {probe_halo:.3f}"))
     if real_format == "png":

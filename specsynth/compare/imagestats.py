@@ -146,9 +146,10 @@ def halo(y: np.ndarray) -> float:
     overshoot is how far the inner 7 x 7's maximum rises above the upper level plus how far its
     minimum falls below the lower; the median over edges whose levels differ by at least
     ``HALO_MIN_STEP``, of overshoot / step. A clean or blurred step gives 0; an unsharp mask of
-    amount a (a Gaussian of 1 pixel) 0.44-0.49 a: its fringes overshoot by 0.601 a, and where the edge
-    crosses the rings they hold part of them (tested). The real LM-O photographs: 0.15. NaN
-    without such edges."""
+    amount a (a Gaussian of 1 pixel) 0.44-0.50 a for a up to 1 (tested; 0.41 a at 2): its fringes
+    overshoot by 0.601 a, and where the edge crosses the rings they hold part of them, more as a
+    grows; once a fringe clips at black or white the reading falls. The real LM-O photographs:
+    0.15. NaN without such edges."""
     y = np.asarray(y, np.float32)
     r = HALO_WINDOW
     inner = gradient_squared(y)[r:-r, r:-r]
