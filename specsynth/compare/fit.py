@@ -169,13 +169,15 @@ def _stat(name: str, rgb8: np.ndarray) -> float:
     return noise_level(luma(rgb8))
 
 
+def _probe_median(lin, cam: Camera, stat: str, normals=None) -> float:
+    """The median ``stat`` of the probe developed by ``cam`` (with its noise when ``normals``)."""
+    return _median([_stat(stat, cam.develop(x, n)) for x, n in zip(lin, normals or [None] * len(lin))])
+
+
 def _search(lin, cam: Camera, field: str, stat: str, lo: float, hi: float, target: float, increasing: bool,
             normals=None) -> float:
     """The value of ``field`` within [lo, hi] that brings the probe's median ``stat`` to ``target``."""
-    def median_at(v: float) -> float:
-        c = replace(cam, **{field: v})
-        return _median([_stat(stat, c.develop(x, n)) for x, n in zip(lin, normals or [None] * len(lin))])
-    return _bisect(median_at, lo, hi, target, increasing)
+    return _bisect(lambda v: _probe_median(lin, replace(cam, **{field: v}), stat, normals), lo, hi, target, increasing)
 
 
 # Sharpening amounts a fit tries, and how close to the real halo counts as there. A halo grows with
@@ -192,7 +194,7 @@ def _sharpening(lin, cam: Camera, target: float, normals) -> float:
     steps stop once the halo falls: past its peak, more sharpening clips more of it)."""
     tried: list[tuple[float, float]] = []
     for v in SHARPENING_STEPS:
-        h = _median([_stat("halo", replace(cam, sharpening=v).develop(x, n)) for x, n in zip(lin, normals)])
+        h = _probe_median(lin, replace(cam, sharpening=v), "halo", normals)
         if h >= target - (HALO_TOLERANCE if v == 0 else 0.0):
             return tried[-1][0] if tried and abs(tried[-1][1] - target) < abs(h - target) else v
         if tried and h < tried[-1][1]:
@@ -256,7 +258,7 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
         for _ in range(2 if np.isfinite(t["halo"]) else 1):
             if np.isfinite(t["halo"]):
                 cam.sharpening = _sharpening(lin, cam, t["halo"], normals)
-            probe_s = _median([_stat("sharpness", replace(cam, sigma=0.0).develop(x, n)) for x, n in zip(lin, normals)])
+            probe_s = _probe_median(lin, replace(cam, sigma=0.0), "sharpness", normals)
             cam.sigma = 0.0
             if probe_s > t["sharpness"] * (1.0 + SHARPNESS_TOLERANCE):
                 cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
@@ -286,7 +288,7 @@ def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t:
              f"fit: real noise median {t['noise']:.2f} levels, the probe's {probe_n:.2f}"),
     ]
     if np.isfinite(t["halo"]):
-        probe_halo = _median([_stat("halo", cam.develop(x, n)) for x, n in zip(lin, normals)])
+        probe_halo = _probe_median(lin, cam, "halo", normals)
         out.append(Edit("sensor.sharpening", cam.sharpening,
                         f"fit: real sharpening halo median {t['halo']:.3f}, the probe's {probe_halo:.3f}"))
     if real_format == "png":
