@@ -221,3 +221,44 @@ def test_coplanar_parts_at_one_pose_draw_the_same_in_every_process(tmp_path):
     runs = {subprocess.run([sys.executable, "-c", COPLANAR_SNIPPET, str(tmp_path)], capture_output=True, text=True,
                            check=True).stdout.strip() for _ in range(4)}
     assert len(runs) == 1, runs
+
+
+BASE_COLOUR_SNIPPET = """
+import sys
+import numpy as np
+from specsynth.annotate.albedo import AlbedoRenderer
+from specsynth.assets.meshio import MeshData, write_mesh
+from specsynth.model.ir import CameraIR, MaterialIR, MeshInstance, RenderScene, as_tuple
+d = sys.argv[1]
+colors = np.tile(np.array([[255, 128, 30, 255]], np.uint8), (4, 1))
+quad = MeshData(vertices=np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float),
+                faces=np.array([[0, 1, 2], [0, 2, 3]]), colors=colors)
+write_mesh(d + "/quad.ply", quad)
+R = np.diag([1.0, -1.0, -1.0])
+cam = CameraIR(K=((60.0, 0, 31.5), (0, 60.0, 23.5), (0, 0, 1.0)), width=64, height=48, R_w2c=as_tuple(R),
+               t_w2c=tuple(-R @ [0.0, 0.0, 1.2]))
+for vertex in (False, True):
+    r = AlbedoRenderer(64, 48)
+    r.load(RenderScene(meshes=(MeshInstance("q", d + "/quad.ply", "q", as_tuple(np.eye(4)),
+                                            MaterialIR(base_color=(0.5, 0.2, 0.05), use_vertex_colors=vertex)),),
+                       lights=()))
+    print(*r.render(cam)[24, 32])
+    r.close()
+"""
+
+
+def test_albedo_of_base_and_vertex_colours_is_their_srgb_product(tmp_path):
+    """A base colour alone, and times vertex colours, come out as the sRGB encoding of the linear
+    product (as a texture does), within a level of 8-bit rounding."""
+    import subprocess
+    import sys
+
+    from specsynth.model.colour import linear_to_srgb, srgb_to_linear
+
+    out = subprocess.run([sys.executable, "-c", BASE_COLOUR_SNIPPET, str(tmp_path)], capture_output=True, text=True,
+                         check=True).stdout.split("\n")
+    base = np.array([0.5, 0.2, 0.05])
+    vertex = srgb_to_linear(np.array([255, 128, 30]) / 255.0)
+    for line, linear in zip(out, (base, base * vertex)):
+        got = np.array([int(v) for v in line.split()])
+        assert np.abs(got - 255 * linear_to_srgb(linear)).max() <= 1.5, (got, 255 * linear_to_srgb(linear))

@@ -16,8 +16,12 @@ from ..model.conventions import cam_to_world, opencv_to_opengl_c2w
 from ..model.ir import CameraIR, MaterialIR, MeshInstance, RenderScene
 from . import glutil
 
-# pyrender encodes its output with a plain 1/2.2 power: decode it, then encode with the sRGB curve.
-_GAMMA_TO_SRGB = np.round(linear_to_srgb((np.arange(256) / 255.0) ** 2.2) * 255.0).astype(np.uint8)
+# pyrender's flat shader multiplies its inputs as given and writes the product: the texture as its
+# file encodes it (sRGB, read here as a 1/2.2 power), so the base colour and the vertex colours are
+# given in the same 1/2.2 power (a product of powers is the power of the product), and the output,
+# decoded with it, is encoded with the sRGB curve.
+GAMMA = 2.2
+_GAMMA_TO_SRGB = np.round(linear_to_srgb((np.arange(256) / 255.0) ** GAMMA) * 255.0).astype(np.uint8)
 
 
 class AlbedoRenderer:
@@ -74,8 +78,9 @@ class AlbedoRenderer:
         colors = None
         if m.use_vertex_colors and data.colors is not None:
             colors = np.ones((len(data.vertices), 4), np.float32)
-            colors[:, :3] = srgb_to_linear(data.colors[:, :3].astype(np.float32) / 255.0)
-        mat = pr.MetallicRoughnessMaterial(baseColorFactor=(*m.base_color, 1.0), baseColorTexture=tex,
+            colors[:, :3] = srgb_to_linear(data.colors[:, :3].astype(np.float32) / 255.0) ** (1 / GAMMA)
+        base = tuple(float(c) ** (1 / GAMMA) for c in m.base_color)
+        mat = pr.MetallicRoughnessMaterial(baseColorFactor=(*base, 1.0), baseColorTexture=tex,
                                            doubleSided=True, alphaMode="OPAQUE")
         prim = pr.Primitive(positions=data.vertices, texcoord_0=uv, color_0=colors, indices=data.faces,
                             material=mat, mode=pr.constants.GLTF.TRIANGLES)

@@ -7,6 +7,7 @@ from ..output_api import Files, View, ViewProduct
 
 class Albedo(ViewProduct):
     name = "albedo"
+    revision = 2  # 2: base colours and vertex colours encoded as the texture is (they were drawn too dark)
     description = ("Albedo maps (each surface's diffuse colour: base colour x texture x vertex colours, "
                    "unlit), 8-bit sRGB PNG, into albedo/.")
 
