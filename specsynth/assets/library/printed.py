@@ -23,12 +23,17 @@ import numpy as np
 from ...atomic import atomic_write_bytes
 from . import pictures
 
-VERSION = 3  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards
+VERSION = 4  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards.
+# 4: the boards' black at BLACK (it was 12, 0.4 % reflectance)
 # Variants drawn per kind (a scene picks among them by its seed) and each kind's size in pixels.
 VARIANTS = {"page": 24, "magazine": 24, "board": 6, "cover": 24, "keyboard": 3, "screen": 12, "cardboard": 6,
             "poster": 8}
 SIZES = {"page": (620, 877), "magazine": (560, 740), "board": (980, 700), "cover": (300, 440),
          "keyboard": (880, 290), "screen": (960, 540), "cardboard": (512, 512), "poster": (600, 840)}
+# Printed black: 57 of 255 (sRGB), 4 % reflectance, as toner or offset black on paper reflects (an
+# optical density of about 1.4). The real LM-O photographs' marker black reads 0.09 of luma beside
+# their paper's 0.85 at the strongest edges; at 0.4 % a render's board black went to 0 there.
+BLACK = 57
 KIND_CODE = {k: i for i, k in enumerate(sorted(VARIANTS))}
 FONT_CREDIT = {"asset": "font:aileron", "name": "Aileron Regular (the font built into Pillow)",
                "author": "Sora Sagano (dotcolon.net)", "licence": "CC0-1.0", "source": "Pillow"}
@@ -221,7 +226,7 @@ def _board(rng, size):
                 continue  # the markers ring the board; the middle stays white
             x, y = ox + c * cell, oy + r * cell
             pad = cell // 10
-            d.rectangle((x + pad, y + pad, x + cell - pad, y + cell - pad), fill=(12, 12, 12))
+            d.rectangle((x + pad, y + pad, x + cell - pad, y + cell - pad), fill=(BLACK, BLACK, BLACK))
             bits = rng.random((n, n)) < 0.5
             bits[n // 2, n // 2] = True  # every glyph has a white bit, so none is all black
             s = (cell - 2 * pad) / (n + 2)
