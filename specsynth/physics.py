@@ -88,7 +88,7 @@ class ArrangeResult:
     sim_seconds: float  # simulated seconds over all rounds
     # Why drops were invalid, over all rounds (each re-drop and each removal has one reason):
     # "left_stage", "fell_off" (below the stage, outside it), "fell_through" (below the stage,
-    # over it), "penetration", "nan".
+    # over it), "penetration", "nan"; "no_room" (an unstacked object found no free spot to start).
     invalid_reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -580,8 +580,10 @@ def _initial_pose(
     orientation: str,
     rng: np.random.Generator,
     occupied: list[np.ndarray],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sample a start pose; returns (COM position, R_world_body, world AABB)."""
+    stack: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Sample a start pose; returns (COM position, R_world_body, world AABB), or None when no free
+    spot was found and ``stack`` is off (else it starts above what is in the way)."""
     m = body.model
     if orientation == "canonical":
         R_world_model = _rot_z(float(rng.uniform(0.0, 2.0 * math.pi)))
@@ -603,6 +605,8 @@ def _initial_pose(
             return cand, R_world_body, box
         if pos is None:
             pos = cand
+    if not stack:
+        return None
     # No free spot at this height: stack above whatever is in the way. Each lift clears one box
     # for good (z only grows), so this ends after at most len(occupied) lifts.
     box = _aabb(offsets, pos)
@@ -614,6 +618,23 @@ def _initial_pose(
         pos = pos + np.array([0.0, 0.0, lift])
         box = _aabb(offsets, pos)
     return pos, R_world_body, box
+
+
+def _start(world, bodies: list[_Body], stage: Stage, arrangements: Arrangements, orientation: str,
+           rng: np.random.Generator, occupied: dict[int, np.ndarray], first_unstacked: int) -> list[_Body]:
+    """Add ``bodies`` to the world at their start poses, recording their boxes in ``occupied``;
+    the ones from index ``first_unstacked`` on that find no free spot are left out. -> the added."""
+    added = []
+    for b in bodies:
+        start = _initial_pose(b, stage, arrangements, orientation, rng, list(occupied.values()),
+                              stack=b.index < first_unstacked)
+        if start is None:
+            continue
+        pos, R, box = start
+        world.add_object(b, pos, R)
+        occupied[b.index] = box
+        added.append(b)
+    return added
 
 
 # --------------------------------------------------------------------------- simulation
@@ -789,8 +810,13 @@ def arrange(
     *,
     shapes: ShapeCache | None = None,
     collision_cache: Path | None = None,
+    unstacked: int = 0,
 ) -> ArrangeResult:
     """Drop ``objects`` (one entry per instance) onto ``stage`` of ``scene`` and let them settle.
+
+    The last ``unstacked`` objects (distractors standing round the objects) are left out, counted
+    as removed for "no_room", when no free spot is found for them, instead of starting stacked on
+    the others as the rest do.
 
     ``shapes`` optionally reuses collision models across calls; ``collision_cache`` is where convex
     decompositions are stored (default: :func:`default_collision_cache_dir`).
@@ -823,10 +849,14 @@ def arrange(
             occupied: dict[int, np.ndarray] = {}
             # Each round re-drops only objects with redrops left, so rounds <= max_redrops + 1.
             while to_drop:
-                for b in to_drop:
-                    pos, R, box = _initial_pose(b, stage, arrangements, orientation, rng, list(occupied.values()))
-                    world.add_object(b, pos, R)
-                    occupied[b.index] = box
+                placed_now = _start(world, to_drop, stage, arrangements, orientation, rng, occupied,
+                                    first_unstacked=len(bodies) - unstacked)
+                if len(placed_now) < len(to_drop):
+                    reasons["no_room"] = reasons.get("no_room", 0) + len(to_drop) - len(placed_now)
+                    removed += len(to_drop) - len(placed_now)
+                to_drop = placed_now
+                if not to_drop:
+                    break
                 steps, settled, lost = _simulate(world, to_drop, stage)
                 steps_total += steps
                 settled_all &= settled

@@ -531,3 +531,26 @@ def test_the_collision_hull_of_a_scanned_model_is_small_and_within_a_millimetre_
         eq = ConvexHull(model.hull).equations
         outside = ((exact @ T[:3, :3].T + T[:3, 3]) @ eq[:, :3].T + eq[:, 3]).max(1)
         assert outside.max() < 1.2e-3, asset.obj_id  # measured: 0.28-1.00 mm
+
+
+def test_unstacked_distractors_are_left_out_where_nothing_is_free(tmp_path):
+    """Three boxes and twelve unstacked distractors standing on a stage of 30 x 30 cm:
+    every object is kept, the distractors that found a free spot stand on the stage itself (none
+    on another), the rest are counted as removed for "no_room". Without ``unstacked`` the same
+    run starts them on top of the others, and none is left out for room."""
+    scene, stage = make_table_scene(tmp_path, stage_half=(0.15, 0.15))
+    box = make_asset(trimesh.creation.box(extents=(0.08, 0.08, 0.05)), tmp_path, "box", 1)
+    toy = make_asset(trimesh.creation.box(extents=(0.07, 0.07, 0.05)), tmp_path, "toy", 2)
+    stand = Arrangements(placement="stand", physics=Physics(max_time=3.0, max_redrops=0, on_invalid="remove"))
+    objects = [box] * 3 + [toy] * 12
+    res = arrange(scene, stage, objects, stand, "canonical", np.random.default_rng(3), unstacked=12)
+    kept = dict(res.placed)
+    assert {0, 1, 2} <= set(kept)
+    assert res.invalid_reasons.get("no_room", 0) >= 1 and len(kept) > 3  # some found room
+    assert res.removed + len(res.placed) == len(objects)
+    assert sum(res.invalid_reasons.values()) == res.removed + res.redropped
+    assert all(pose[2, 3] < TABLE_TOP + 0.03 for pose in kept.values())  # each on the stage: 2.5 cm up
+    check_valid(res, objects, stage)
+    stacked = arrange(scene, stage, objects, stand, "canonical", np.random.default_rng(3))
+    assert "no_room" not in stacked.invalid_reasons
+    assert stacked.removed + len(stacked.placed) == len(objects)

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from PIL import Image
 
 from specsynth.assets.library import textures
 from specsynth.assets.library.cache import cache_dir
@@ -190,3 +193,66 @@ def test_a_distractor_drawn_twice_is_dropped_twice_by_a_cold_worker(tmp_path):
     g = compile_spec(load_spec(f))
     assets = World(g.inputs.arrange, f.parent).distractor_assets(["teddy", "random_urdfs/007", "teddy"])
     assert [a.name for a in assets] == ["teddy", "random_urdfs/007", "teddy"] and assets[0] is assets[2]
+
+
+PAINTED = SPEC.replace('objects: ["random_urdfs/*", teddy]}', 'objects: [teddy, toys/cube], paint: 1.0, annotate: true}') \
+    .replace("builtin: [duck, mug]", "builtin: [mug]").replace("image_format: png}", "image_format: png, albedo: true}") \
+    .replace("  - name: room\n    randomize: {materials: 1.0, roughness: 0.2, light_temperature: [2700, 6500], "
+             "light_strength: [0.5, 2.0],\n                light_position: 0.3}\n", "  - name: room\n")
+
+
+def test_painted_distractors_are_drawn_in_their_colour(tmp_path):
+    """distractors.paint: each painted distractor is one plastic colour, kept in its record, and
+    drawn in it (its albedo under its own mask is that colour); paint 0 draws nothing."""
+    from specsynth.model.colour import linear_to_srgb
+
+    f = tmp_path / "dr.yaml"
+    f.write_text(PAINTED)
+    s = build(compile_spec(load_spec(f)), tmp_path / "out", jobs=1)
+    assert not s.failures, s.failures
+    store = Store(tmp_path / "out")
+    recs = {r.arr: r for r in (ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange"))}
+    painted = [o for r in recs.values() for o in r.objects if o.obj_id > 1]
+    assert len(painted) >= 4 and all(o.color is not None for o in painted)
+    assert len({tuple(o.color) for o in painted}) == len(painted)  # each its own colour
+    assert all(o.color is None for r in recs.values() for o in r.objects if o.obj_id == 1)
+    chunk = tmp_path / "out" / "bop" / "train_pbr" / "000000"
+    gt = json.loads((chunk / "scene_gt.json").read_text())
+    checked = 0
+    for im, insts in gt.items():
+        albedo = np.asarray(Image.open(chunk / "albedo" / f"{int(im):06d}.png")).astype(float)
+        objects = recs[int(im) // 2].objects
+        for k, inst in enumerate(insts):
+            mask = np.asarray(Image.open(chunk / "mask_visib" / f"{int(im):06d}_{k:06d}.png")) > 0
+            if inst["obj_id"] == 1 or mask.sum() < 30:
+                continue
+            want = 255 * linear_to_srgb(np.asarray(objects[k].color))
+            assert np.abs(np.median(albedo[mask], axis=0) - want).max() < 3
+            checked += 1
+    assert checked >= 2
+    f.write_text(PAINTED.replace("paint: 1.0", "paint: 0.0"))
+    s = build(compile_spec(load_spec(f)), tmp_path / "plain", jobs=1)
+    store = Store(tmp_path / "plain")
+    assert all(o.color is None for k in store.keys("arrange")
+               for o in ArrangementRecord.from_json(store.load("arrange", k)).objects)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), share=st.floats(0.0, 1.0))
+def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share):
+    import colorsys
+
+    from specsynth.model.colour import linear_to_srgb
+    from specsynth.run.arrange import paint_color
+
+    rng = np.random.default_rng(seed)
+    colours = [paint_color(share, rng) for _ in range(200)]
+    if share == 0.0:
+        assert all(c is None for c in colours)
+        assert rng.random() == np.random.default_rng(seed).random()  # nothing drawn
+        return
+    painted = [c for c in colours if c is not None]
+    assert abs(len(painted) / 200 - share) < 0.2
+    for c in painted:
+        h, s, v = colorsys.rgb_to_hsv(*linear_to_srgb(np.asarray(c)))
+        assert 0.55 - 1e-6 <= s <= 0.95 + 1e-6 and 0.45 - 1e-6 <= v <= 0.95 + 1e-6

@@ -49,6 +49,13 @@ class MaterialIR:
     wrap: Literal["repeat", "clamp", "mirror"] = "repeat"
     double_sided: bool = True  # informational: Cycles and Mitsuba shade both sides of every surface
 
+    def painted(self, color) -> "MaterialIR":
+        """This material painted one colour (linear RGB): its base colour, vertex colours and colour
+        texture replaced, its surface (roughness, relief, ...) kept. ``None``: unchanged."""
+        if color is None:
+            return self
+        return replace(self, base_color=tuple(float(c) for c in color), use_vertex_colors=False, texture=None)
+
     @property
     def textures(self) -> tuple[str, ...]:
         """Every image file the material reads."""

@@ -17,6 +17,7 @@ class PlacedObject:
     inst: int  # index among the arrangement's kept objects: the gt order of every view
     name: str  # asset name (built-in name or obj_XXXXXX)
     pose: list[list[float]]  # 4x4 world-from-model, metres
+    color: list[float] | None = None  # painted: the linear RGB base colour replacing the model's own
 
 
 @dataclass

@@ -20,8 +20,9 @@ from typing import Any
 # level with denoising turned off renders the paper preset's samples (plugins.options_for). arrange 4:
 # collision hulls of at most 1024 support points (physics.HULL_DIRECTIONS). render 4: files recorded by
 # kind (ImageRecord.files) and written by registered products: a render job of an earlier version is
-# run again, never read.
-STAGE_VERSIONS = {"arrange": 4, "view": 2, "render": 4}
+# run again, never read. arrange 5: standing distractors with no free spot are left out, not stacked
+# (physics.arrange's unstacked); distractors may be painted.
+STAGE_VERSIONS = {"arrange": 5, "view": 2, "render": 4}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 

@@ -3,9 +3,12 @@ physics, store the arrangement record (with the credits of everything it shows).
 
 from __future__ import annotations
 
+import colorsys
+
 import numpy as np
 
 from ..assets.resolve import ObjectAsset, catalogue_objects
+from ..model.colour import srgb_to_linear
 from ..model.records import ArrangementRecord, PlacedObject
 from ..plan import seeds
 from ..plan.compiler import Job
@@ -54,8 +57,12 @@ class ArrangeStep:
         for m in models:
             drop += [m] * int(rng.integers(lo, hi + 1))
         distractors = world.distractor_assets(draw_distractors(inp.arrangements.distractors, rng))
-        result = arrange(scene, stage, drop + distractors, inp.arrangements, inp.objects.orientation, rng)
-        placed, others = self.placed(result.placed, drop, distractors)
+        # Standing, as things stand on a desk: a distractor with no free spot is left out, not stacked.
+        unstacked = len(distractors) if inp.arrangements.placement == "stand" else 0
+        result = arrange(scene, stage, drop + distractors, inp.arrangements, inp.objects.orientation, rng,
+                         unstacked=unstacked)
+        placed, others = self.placed(result.placed, drop, distractors,
+                                     seeds.job_rng(inp.seed, f"{job.id}/paint"))
         rec = ArrangementRecord(
             arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
             objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
@@ -77,20 +84,23 @@ class ArrangeStep:
             models = [models[i] for i in chosen]
         return models
 
-    def placed(self, kept, drop: list[ObjectAsset], distractors: list[ObjectAsset]
+    def placed(self, kept, drop: list[ObjectAsset], distractors: list[ObjectAsset], paint_rng: np.random.Generator
                ) -> tuple[list[PlacedObject], list[PlacedObject]]:
         """(the annotated objects in gt order, the distractors left as scene geometry) of what
-        physics kept (``kept``: (index into drop + distractors, pose))."""
+        physics kept (``kept``: (index into drop + distractors, pose)); distractors painted by
+        ``paint_rng``."""
         targets = [(i, pose) for i, pose in kept if i < len(drop)]
         placed = [PlacedObject(obj_id=drop[i].obj_id, inst=n, name=drop[i].name, pose=np.asarray(pose).tolist())
                   for n, (i, pose) in enumerate(targets)]
-        others = [PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist())
-                  for n, (i, pose) in enumerate((i, pose) for i, pose in kept if i >= len(drop))]
         d = self.inputs.arrangements.distractors
+        others = [PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist(),
+                               color=paint_color(d.paint, paint_rng))
+                  for n, (i, pose) in enumerate((i, pose) for i, pose in kept if i >= len(drop))]
         if not d.annotate:
             return placed, others
         n_obj = len(self.world.assets())  # annotated: objects like the others, after them in gt order
-        placed += [PlacedObject(obj_id=d.obj_id(o.name, n_obj), inst=len(placed) + k, name=o.name, pose=o.pose)
+        placed += [PlacedObject(obj_id=d.obj_id(o.name, n_obj), inst=len(placed) + k, name=o.name, pose=o.pose,
+                                color=o.color)
                    for k, o in enumerate(others)]
         return placed, []
 
@@ -99,6 +109,16 @@ class ArrangeStep:
         spec_ids = {a.obj_id for a in self.world.assets()}
         by_id = self.world.assets_by_id(rec)
         return tuple(by_id[i] for i in sorted(by_id) if i not in spec_ids)
+
+
+def paint_color(share: float, rng: np.random.Generator) -> list[float] | None:
+    """A plastic colour (linear RGB) for one distractor with probability ``share``, else None (its
+    own colours). Nothing is drawn at 0, so a spec without paint draws as before."""
+    if share <= 0.0 or rng.random() >= share:
+        return None
+    h, s, v = rng.random(), rng.uniform(0.55, 0.95), rng.uniform(0.45, 0.95)
+    encoded = np.asarray(colorsys.hsv_to_rgb(h, s, v))
+    return srgb_to_linear(encoded).tolist()
 
 
 def draw_stage(weights: list[float], rng) -> int:

@@ -97,7 +97,7 @@ class World:
         objects = tuple(
             MeshInstance(name=f"obj_{o.obj_id:06d}_{o.inst:03d}", mesh_path=by_id[o.obj_id].mesh_path,
                          mesh_key=by_id[o.obj_id].mesh_key, pose=as_tuple(np.asarray(o.pose)),
-                         material=by_id[o.obj_id].material, obj_id=o.obj_id, inst=o.inst)
+                         material=by_id[o.obj_id].material.painted(o.color), obj_id=o.obj_id, inst=o.inst)
             for o in arr.objects
         )
         name, variant = arr.scene_ref
@@ -140,7 +140,7 @@ class World:
         found = {a.name: a for a in self.distractor_assets(sorted({d.name for d in placed}))}
         return tuple(MeshInstance(name=f"distractor_{k:03d}", mesh_path=found[d.name].mesh_path,
                                   mesh_key=found[d.name].mesh_key, pose=as_tuple(np.asarray(d.pose)),
-                                  material=found[d.name].material)
+                                  material=found[d.name].material.painted(d.color))
                      for k, d in enumerate(placed))
 
     def _randomized(self, scene: RenderScene, ref: SceneRef, arr: int) -> RenderScene:

@@ -309,6 +309,11 @@ class Distractors(Strict):
         description="Built-in objects to draw from (see specsynth.assets.resolve.builtin_objects): names, "
         "'random_urdfs/*' for pybullet_data's 1000 random shapes, 'catalogue/*' for the furniture library's 163 "
         "small items (books, cups, plants, toys; `specsynth furniture`), or one of them as 'catalogue/<id>'.")
+    paint: float = Field(
+        0.0, ge=0.0, le=1.0,
+        description="Share of the distractors painted one random plastic colour (hue uniform, HSV saturation "
+        "0.55-0.95, value 0.45-0.95), replacing the model's own colours and colour texture, as toys and office plastics "
+        "come in every colour: 0 keeps every model's own look. Each distractor is painted or not by its own draw.")
     annotate: bool = Field(
         False, description="Annotate the distractors too (BOP's 'other objects'): each distractor model gets an obj_id "
         "after the dataset's objects, stable across builds (N + 1 + its position in 'objects'; random_urdfs/k after "
