@@ -237,6 +237,29 @@ def test_painted_distractors_are_drawn_in_their_colour(tmp_path):
                for o in ArrangementRecord.from_json(store.load("arrange", k)).objects)
 
 
+def test_painted_distractors_keep_their_paint_through_randomised_materials(tmp_path):
+    """Unannotated distractors are scene geometry, whose materials randomisation swaps for library
+    textures (materials: 1.0): a painted one is drawn in its paint all the same, a plastic (not
+    metal), with the randomised roughness kept."""
+    f = tmp_path / "dr.yaml"
+    f.write_text(SPEC.replace('objects: ["random_urdfs/*", teddy]}', 'objects: ["random_urdfs/*", teddy], paint: 1.0}'))
+    g = compile_spec(load_spec(f))
+    s = build(g, tmp_path / "out", jobs=1)
+    assert not s.failures, s.failures
+    store = Store(tmp_path / "out")
+    world = World(g.inputs.arrange, f.parent)
+    checked = 0
+    for k in store.keys("arrange"):
+        rec = ArrangementRecord.from_json(store.load("arrange", k))
+        meshes = {m.name: m for m in world.render_scene(rec).meshes}
+        for n, d in enumerate(rec.distractors):
+            m = meshes[f"distractor_{n:03d}"].material
+            assert d.color is not None and m.base_color == pytest.approx(tuple(d.color))
+            assert m.texture is None and not m.use_vertex_colors and m.metallic == 0.0
+            checked += 1
+    assert checked >= 4
+
+
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), share=st.floats(0.0, 1.0))
 def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share):

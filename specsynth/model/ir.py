@@ -50,11 +50,13 @@ class MaterialIR:
     double_sided: bool = True  # informational: Cycles and Mitsuba shade both sides of every surface
 
     def painted(self, color) -> "MaterialIR":
-        """This material painted one colour (linear RGB): its base colour, vertex colours and colour
-        texture replaced, its surface (roughness, relief, ...) kept. ``None``: unchanged."""
+        """This material painted one plastic colour (linear RGB): its base colour, vertex colours and
+        colour texture replaced, neither metal nor glass any more, its surface (roughness, relief,
+        specular) kept. ``None``: unchanged."""
         if color is None:
             return self
-        return replace(self, base_color=tuple(float(c) for c in color), use_vertex_colors=False, texture=None)
+        return replace(self, base_color=tuple(float(c) for c in color), use_vertex_colors=False, texture=None,
+                       metallic=0.0, transmission=0.0, metallic_texture=None)
 
     @property
     def textures(self) -> tuple[str, ...]:

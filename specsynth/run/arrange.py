@@ -63,12 +63,13 @@ class ArrangeStep:
                          unstacked=unstacked)
         placed, others = self.placed(result.placed, drop, distractors,
                                      seeds.job_rng(inp.seed, f"{job.id}/paint"))
+        kept = {distractors[i - len(drop)].name for i, _ in result.placed if i >= len(drop)}  # credited: shown
         rec = ArrangementRecord(
             arr=job.arr, scene=ref.ref if variant is None else f"{ref.ref}#{variant}", stage=stage.name,
             objects=placed, dropped=len(drop), removed=result.removed, redropped=result.redropped,
             settled=result.settled, sim_seconds=result.sim_seconds, seed=job.seed,
             credits=list(scene.credits) + [a.credit for a in models if a.credit]
-            + [a.credit for a in {d.name: d for d in distractors}.values() if a.credit],
+            + [a.credit for a in {d.name: d for d in distractors}.values() if a.credit and a.name in kept],
             distractors=others,
         )
         rec.credits += swapped_credits(world, rec, ref)

@@ -106,7 +106,7 @@ class World:
         if arr.distractors:
             scene = RenderScene(meshes=scene.meshes + self._distractor_meshes(arr.distractors), lights=scene.lights,
                                 world=scene.world)
-        return self._randomized(scene, ref, arr.arr)
+        return _painted(self._randomized(scene, ref, arr.arr), arr.distractors)
 
     def frame(self, arr: ArrangementRecord) -> Framed:
         """The arrangement re-centred on its objects (renderers work in float32 near the origin)."""
@@ -140,7 +140,7 @@ class World:
         found = {a.name: a for a in self.distractor_assets(sorted({d.name for d in placed}))}
         return tuple(MeshInstance(name=f"distractor_{k:03d}", mesh_path=found[d.name].mesh_path,
                                   mesh_key=found[d.name].mesh_key, pose=as_tuple(np.asarray(d.pose)),
-                                  material=found[d.name].material.painted(d.color))
+                                  material=found[d.name].material)
                      for k, d in enumerate(placed))
 
     def _randomized(self, scene: RenderScene, ref: SceneRef, arr: int) -> RenderScene:
@@ -222,3 +222,15 @@ class Held:
         if self._obj is not None:
             self._obj.close()
         self._obj = self._held = None
+
+
+def _painted(scene: RenderScene, distractors: list[PlacedObject]) -> RenderScene:
+    """``scene`` with its distractors (``distractor_<k>``, after any randomisation, which would
+    otherwise swap a painted one's colour for a library texture) in their paint."""
+    colour = {f"distractor_{k:03d}": d.color for k, d in enumerate(distractors) if d.color is not None}
+    if not colour:
+        return scene
+    meshes = tuple(replace(m, material=m.material.painted(colour[m.name])) if m.name in colour else m
+                   for m in scene.meshes)
+    return RenderScene(meshes=meshes, lights=scene.lights, world=scene.world)
+

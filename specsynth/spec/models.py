@@ -312,8 +312,9 @@ class Distractors(Strict):
     paint: float = Field(
         0.0, ge=0.0, le=1.0,
         description="Share of the distractors painted one random plastic colour (hue uniform, HSV saturation "
-        "0.55-0.95, value 0.45-0.95), replacing the model's own colours and colour texture, as toys and office plastics "
-        "come in every colour: 0 keeps every model's own look. Each distractor is painted or not by its own draw.")
+        "0.55-0.95, value 0.45-0.95), replacing the model's own colours and colour texture (a plastic: neither metal nor "
+        "glass), as toys and office plastics come in every colour: 0 keeps every model's own look. Each distractor is "
+        "painted or not by its own draw; an annotated one keeps its model's own colours in bop/models.")
     annotate: bool = Field(
         False, description="Annotate the distractors too (BOP's 'other objects'): each distractor model gets an obj_id "
         "after the dataset's objects, stable across builds (N + 1 + its position in 'objects'; random_urdfs/k after "

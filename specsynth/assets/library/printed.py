@@ -32,7 +32,8 @@ SIZES = {"page": (620, 877), "magazine": (560, 740), "board": (980, 700), "cover
          "keyboard": (880, 290), "screen": (960, 540), "cardboard": (512, 512), "poster": (600, 840)}
 # Printed black: 57 of 255 (sRGB), 4 % reflectance, as toner or offset black on paper reflects (an
 # optical density of about 1.4). The real LM-O photographs' marker black reads 0.09 of luma beside
-# their paper's 0.85 at the strongest edges; at 0.4 % a render's board black went to 0 there.
+# their paper's 0.85 at the strongest edges, 4.9 % apart in linear light through lmo_pbr_h's fitted
+# tone curve; at 0.4 % a render's board black went to 0 there.
 BLACK = 57
 KIND_CODE = {k: i for i, k in enumerate(sorted(VARIANTS))}
 FONT_CREDIT = {"asset": "font:aileron", "name": "Aileron Regular (the font built into Pillow)",
