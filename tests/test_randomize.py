@@ -19,7 +19,7 @@ from specsynth.model.records import ArrangementRecord
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.build import build
 from specsynth.run.store import Store
-from specsynth.run.worker import World
+from specsynth.run.worker import World, distractor_name
 from specsynth.scenes import load_scene
 from specsynth.scenes.randomize import randomize_scene
 from specsynth.spec.models import SceneRandomization
@@ -253,7 +253,7 @@ def test_painted_distractors_keep_their_paint_through_randomised_materials(tmp_p
         rec = ArrangementRecord.from_json(store.load("arrange", k))
         meshes = {m.name: m for m in world.render_scene(rec).meshes}
         for n, d in enumerate(rec.distractors):
-            m = meshes[f"distractor_{n:03d}"].material
+            m = meshes[distractor_name(n)].material
             assert d.color is not None and m.base_color == pytest.approx(tuple(d.color))
             assert m.texture is None and not m.use_vertex_colors and m.metallic == 0.0
             checked += 1

@@ -138,7 +138,7 @@ class World:
     def _distractor_meshes(self, placed: list[PlacedObject]) -> tuple[MeshInstance, ...]:
         """Distractors are scene geometry (``obj_id`` None): drawn, occluding, never annotated."""
         found = {a.name: a for a in self.distractor_assets(sorted({d.name for d in placed}))}
-        return tuple(MeshInstance(name=f"distractor_{k:03d}", mesh_path=found[d.name].mesh_path,
+        return tuple(MeshInstance(name=distractor_name(k), mesh_path=found[d.name].mesh_path,
                                   mesh_key=found[d.name].mesh_key, pose=as_tuple(np.asarray(d.pose)),
                                   material=found[d.name].material)
                      for k, d in enumerate(placed))
@@ -227,10 +227,14 @@ class Held:
 def _painted(scene: RenderScene, distractors: list[PlacedObject]) -> RenderScene:
     """``scene`` with its distractors (``distractor_<k>``, after any randomisation, which would
     otherwise swap a painted one's colour for a library texture) in their paint."""
-    colour = {f"distractor_{k:03d}": d.color for k, d in enumerate(distractors) if d.color is not None}
+    colour = {distractor_name(k): d.color for k, d in enumerate(distractors) if d.color is not None}
     if not colour:
         return scene
     meshes = tuple(replace(m, material=m.material.painted(colour[m.name])) if m.name in colour else m
                    for m in scene.meshes)
     return RenderScene(meshes=meshes, lights=scene.lights, world=scene.world)
 
+
+def distractor_name(k: int) -> str:
+    """The scene mesh of an arrangement's ``k``-th distractor."""
+    return f"distractor_{k:03d}"
