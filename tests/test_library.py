@@ -373,3 +373,66 @@ def test_scenes_json_lists_every_builtin_scene(capsys):
     assert {"room", "room2", "kiva", "random_room"} <= set(rows)
     assert rows["random_room"]["procedural"] and rows["random_room"]["stages"] == [] and rows["random_room"]["assets"] > 200
     assert rows["room"]["stages"] and rows["room"]["assets"] >= 10
+
+
+def test_desk_tops_are_finished_as_office_desks_light_and_near_neutral(cache):
+    """Every work surface of the office and lab kinds gets one finish on all its top materials (its
+    woods and textures, not its metal or rubber): a light grain texture whose tinted mean colour is
+    a laminate's, so no desk is the red, blue or varnished wood the floors may be."""
+    import colorsys
+
+    from specsynth.model.colour import linear_to_srgb
+    from specsynth.scenes import random_room as rr
+
+    grain = [t for t in textures.available(cache) if t.name in rr.DESK_GRAIN]
+    assert len(grain) == len(rr.DESK_GRAIN)
+    finishes = np.array(rr.DESK_FINISHES)
+    ids = [i for i in furniture.catalogue() if any(re.match(p, i.id) for p in rr.WORKTOPS.values())]
+    assert len(ids) >= 10
+    for k, item in enumerate(ids):
+        tops = rr.top_materials(item, cache)
+        assert not any(rr.NOT_TOP_WORDS.search(n) for n in tops)
+        for seed in range(4):
+            done = rr.finish_top(np.random.default_rng((k, seed)), item, cache, grain)
+            assert set(done) == set(tops) and len({m.model_dump_json() for m in done.values()}) <= 1
+            for m in list(done.values())[:1]:
+                mean = linear_to_srgb(rr.texture_mean(m.texture) * np.array(m.base_color))
+                h, s, v = colorsys.rgb_to_hsv(*mean)
+                # the drawn finish within the brightness draw (0.9-1.05 in linear light), or darker where no grain is light enough
+                assert s <= 0.4 and np.abs(finishes / finishes.max(1, keepdims=True) - mean / mean.max()).max(1).min() < 0.05
+    assert rr.top_materials(furniture.find("Blend Swap CC-0#lbDesk"), cache) == ["Desk"]
+    room, credits = random_room(3, cache, kind="office_desk")
+    desk = next(m for m in room.meshes if m.name.startswith("furniture_") and rr.is_worktop(furniture.find(m.source.furniture)))
+    used = {Path(m.texture).name for m in desk.materials.values() if m.texture}
+    assert used and used <= {Path(t.path).name for t in grain}
+    assert {t.credit["asset"] for t in grain if Path(t.path).name in used} <= {c["asset"] for c in credits}
+
+
+def test_offices_and_labs_are_in_office_colours_other_rooms_as_before(cache):
+    """Offices and labs: white to pale grey walls, neutral floors or dark grey carpet, furniture in
+    neutral woods, no rug; living rooms keep their rugs."""
+    import colorsys
+
+    from specsynth.model.colour import linear_to_srgb
+    from specsynth.scenes import random_room as rr
+
+    names = {Path(t.path).name: t for t in textures.available(cache)}
+    rugs = 0
+    for seed in range(12):
+        for kind in rr.OFFICE_KINDS:
+            room, _ = random_room(seed, cache, kind=kind)
+            by = {m.name: m for m in room.meshes}
+            assert "rug" not in by
+            floor = names[Path(by["floor"].material.texture).name]
+            assert floor.name in rr.OFFICE_FLOORS or by["floor"].material.base_color in rr.CARPETS
+            wall = by["wall_south"].material
+            assert names[Path(wall.texture).name].name in rr.OFFICE_WALLS and wall.base_color in rr.OFFICE_PAINTS
+            for m in room.meshes:
+                if m.name.startswith("furniture_"):
+                    for mat in m.materials.values():
+                        t = names.get(Path(mat.texture).name) if mat.texture else None
+                        assert t is None or t.kind != "floor" or t.name in rr.OFFICE_FLOORS, (kind, t.name)
+        rugs += any(m.name == "rug" for m in random_room(seed, cache, kind="living_room")[0].meshes)
+    assert rugs >= 3
+    for c in rr.CARPETS + rr.OFFICE_PAINTS:  # near grey as shown (sRGB)
+        assert colorsys.rgb_to_hsv(*linear_to_srgb(np.array(c)))[1] <= 0.12

@@ -14,13 +14,14 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from ..assets.library import furniture, pmndrs, printed, textures
 from ..assets.library import pictures as picture_library
-from ..model.colour import kelvin_rgb
+from ..model.colour import kelvin_rgb, srgb_to_linear
 from . import props
 from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
 
@@ -36,7 +37,9 @@ from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Tr
 # more sheets; a poster covers the marker board's middle. 13: the shelf unit stands clear of the pinboard.
 # 14: islands (room.islands): the work surface in the middle of the room, dressed on all sides. 15: a top
 # bigger than a typical desk's (a bench, an island of two desks) is dressed in proportion to its area.
-GENERATOR_VERSION = 15
+# 16: desk and bench tops finished as office furniture is (DESK_FINISHES), not in any wood of the library;
+# offices and labs in office colours (OFFICE_PAINTS, OFFICE_FLOORS, neutral carpets, no rug).
+GENERATOR_VERSION = 16
 # Kind -> catalogue categories, and (for kinds no category matches) the models' names that belong.
 ROOM_KINDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "living_room": (("Living room",), None),
@@ -83,9 +86,23 @@ OUTDOOR_HDRIS = ("city", "courtyard", "forest", "sunrise", "sunset")
 # Wall paints (linear RGB multipliers of the plaster texture) and rug dyes: real rooms are not all beige.
 PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.62, 0.75, 0.88), (0.66, 0.8, 0.62), (0.92, 0.62, 0.48),
           (0.95, 0.85, 0.5), (0.7, 0.7, 0.72), (0.85, 0.66, 0.8), (0.45, 0.6, 0.7))
-CARPETS = ((0.12, 0.14, 0.18), (0.2, 0.2, 0.22), (0.16, 0.2, 0.28), (0.25, 0.22, 0.2), (0.1, 0.1, 0.11))
+# Offices and labs: walls white to pale grey, floors in neutral woods and tiles or dark grey carpet tiles,
+# as offices are (and the LM-O test photographs' office is); their furniture's woods are the same
+# few (no blue, green, red or varnished orange wood). Their colour is in the things on the desks.
+OFFICE_KINDS = ("office", "office_desk", "lab")
+OFFICE_PAINTS = ((1.0, 1.0, 1.0), (0.95, 0.93, 0.85), (0.88, 0.9, 0.92), (0.8, 0.8, 0.8), (0.92, 0.9, 0.84))
+OFFICE_FLOORS = ("gray-woodgrain", "light-gray-floor-tile", "dark-wood", "light-wood")
+OFFICE_WALLS = ("cream-plaster", "gray-plaster", "light-gray-plaster", "pink-plaster", "white-bricks", "white-plaster")
+CARPETS = ((0.1, 0.1, 0.1), (0.16, 0.16, 0.17), (0.22, 0.22, 0.22), (0.12, 0.13, 0.15), (0.2, 0.19, 0.18))
 DYES = ((0.6, 0.12, 0.1), (0.1, 0.25, 0.55), (0.15, 0.4, 0.2), (0.55, 0.45, 0.1), (0.4, 0.15, 0.45),
         (0.08, 0.35, 0.4), (0.5, 0.3, 0.2), (0.7, 0.55, 0.4))
+# Desk and bench tops: the mean colour (sRGB) of laminates and light woods as offices and labs have them
+# (the LM-O test photographs' desk is light beige wood), now and then grey or anthracite. Grain comes
+# from a light wood texture of the library; red, blue and varnished woods are floors, not desks.
+DESK_FINISHES = ((0.84, 0.77, 0.63), (0.80, 0.68, 0.52), (0.87, 0.81, 0.70), (0.76, 0.74, 0.70),
+                 (0.88, 0.88, 0.86), (0.62, 0.61, 0.58), (0.30, 0.30, 0.31))
+DESK_GRAIN = ("gray-woodgrain", "light-wood")
+NOT_TOP_WORDS = re.compile(r"metal|chrome|alum|steel|brushed|rubber|lock|handle|leg|glass", re.I)
 WALL = 0.1  # wall thickness, metres
 GAP = 0.06  # free space kept between pieces of furniture
 REDRESS = 0.75  # probability that a plain wood-like or fabric-like material gets a texture
@@ -551,14 +568,15 @@ def _tint(rng, spread: float = 0.06, level: tuple[float, float] = (0.85, 1.0)) -
 
 
 def _shell(rng, W: float, D: float, H: float, window, cache: Path, library,
-           carpet: bool = False) -> tuple[list[SceneMesh], list[dict]]:
-    """Floor, ceiling and walls (textured, with relief; offices and labs may have a carpet), and a rug
-    in half the rooms."""
+           office: bool = False) -> tuple[list[SceneMesh], list[dict]]:
+    """Floor, ceiling and walls (textured, with relief), and a rug in half the rooms. Offices and
+    labs (``office``) have a dark carpet as often as not, else a floor of ``OFFICE_FLOORS``, walls
+    painted white to pale grey and no rug."""
     felt = next((t for t in library if t.kind == "fabric"), None)
-    floor_t = _tex(rng, [t for t in library if t.kind == "floor"], "floor")
-    wall_t = _tex(rng, [t for t in library if t.kind == "wall"], "wall")
+    floor_t = _tex(rng, [t for t in library if t.kind == "floor" and (not office or t.name in OFFICE_FLOORS)], "floor")
+    wall_t = _tex(rng, [t for t in library if t.kind == "wall" and (not office or t.name in OFFICE_WALLS)], "wall")
     floor_kind = "tiles" if "tile" in floor_t.name and "wood" not in floor_t.name else "wood"
-    if carpet and felt is not None and rng.random() < 0.5:  # offices: dark carpet tiles as often as not
+    if office and felt is not None and rng.random() < 0.5:  # offices: dark carpet tiles as often as not
         floor_t = felt
         floor_mat = SceneMaterial(texture=str(felt.path), uv_scale=1.0 / felt.tile, roughness=0.95, specular=0.2,
                                   base_color=CARPETS[int(rng.integers(len(CARPETS)))],
@@ -566,7 +584,8 @@ def _shell(rng, W: float, D: float, H: float, window, cache: Path, library,
     else:
         floor_mat = SceneMaterial(texture=str(floor_t.path), uv_scale=1.0 / floor_t.tile, base_color=_tint(rng),
                                   roughness=_step(rng.uniform(0.4, 0.75)), **_relief(rng, cache, floor_kind, (0.15, 0.5)))
-    paint = PAINTS[int(rng.integers(len(PAINTS)))]
+    paints = OFFICE_PAINTS if office else PAINTS
+    paint = paints[int(rng.integers(len(paints)))]
     wall_mat = SceneMaterial(texture=str(wall_t.path), base_color=paint, uv_scale=1.0 / wall_t.tile, roughness=0.85,
                              specular=0.3, **_relief(rng, cache, "stone" if "brick" in wall_t.name else "wall", (0.1, 0.4)))
     meshes = [
@@ -576,20 +595,71 @@ def _shell(rng, W: float, D: float, H: float, window, cache: Path, library,
         *_walls(W, D, H, window, wall_mat),
     ]
     rug = _rug(rng, W, D, felt)
+    if office:  # drawn all the same, so that the furniture after it is drawn as in other kinds of room
+        rug = []
     return meshes + rug, list({c["asset"]: c for c in [floor_t.credit, wall_t.credit] + ([felt.credit] if rug else [])}.values())
 
 
-def _furniture_meshes(rng, placed: list[Placed], cache: Path, library) -> tuple[list[SceneMesh], list[dict]]:
-    """The placed pieces, their plain wood and fabric re-dressed (with relief) in most cases."""
+def _furniture_meshes(rng, placed: list[Placed], cache: Path, library, finish_rng=None,
+                      office: bool = False) -> tuple[list[SceneMesh], list[dict]]:
+    """The placed pieces, their plain wood and fabric re-dressed (with relief) in most cases; in an
+    ``office`` (or lab), in its few woods, and its desks and benches finished as office furniture
+    (drawn from ``finish_rng``, a stream of their own, so that the rest of the room is drawn as in
+    other kinds)."""
     felt = next((t for t in library if t.kind == "fabric"), None)
-    woods = [t for t in library if t.kind == "floor" and "wood" in t.name]
+    woods = [t for t in library if t.kind == "floor" and "wood" in t.name and (not office or t.name in OFFICE_FLOORS)]
+    grain = [t for t in woods if t.name in DESK_GRAIN]
+    credit_of = {t.path.as_posix(): t.credit for t in library}
     meshes, credits = [], []
     for k, p in enumerate(placed):
-        overrides, used = redress(rng, p.item, cache, woods, felt)
-        credits += used
+        overrides, _ = redress(rng, p.item, cache, woods, felt)
+        if office and finish_rng is not None and grain and is_worktop(p.item):
+            overrides |= finish_top(finish_rng, p.item, cache, grain)
+        credits += [credit_of[Path(m.texture).as_posix()] for m in overrides.values() if m.texture
+                    and Path(m.texture).as_posix() in credit_of]
         meshes.append(SceneMesh(name=f"furniture_{k:02d}", source={"furniture": p.item.id}, materials=overrides,
                                 transform=Transform(translation=(p.x, p.y, 0.0), rotation=(0.0, 0.0, p.yaw))))
     return meshes, credits
+
+
+def top_materials(item: furniture.FurnitureItem, cache: Path) -> list[str]:
+    """The names of a desk's or bench's materials that make its top: its woods (by name) and its
+    textured materials, not its metal, plastic, rubber or glass parts."""
+    from ..assets.meshfiles import obj as obj_reader
+
+    names = []
+    for name, (mat, lib) in sorted(obj_reader.materials_of(furniture.extract(item, cache)).items()):
+        textured = bool(mat.map_kd) and obj_reader.texture_path(lib, mat.map_kd).is_file()
+        if (textured or any(w in name.lower() for w in WOOD_WORDS)) and not NOT_TOP_WORDS.search(name):
+            names.append(name)
+    return names
+
+
+def finish_top(rng, item: furniture.FurnitureItem, cache: Path, grain: list) -> dict[str, SceneMaterial]:
+    """One finish of ``DESK_FINISHES`` for all of a worktop's top materials: a light wood texture
+    tinted so that its mean colour is the finish's -> ``materials:`` overrides. The finish is
+    darker than drawn only where no grain texture is light enough for it (a tint is at most 1)."""
+    target = srgb_to_linear(np.array(DESK_FINISHES[int(rng.integers(len(DESK_FINISHES)))]))
+    target = target * float(rng.uniform(0.9, 1.05))
+    tints = [target / np.maximum(texture_mean(str(t.path)), 1e-3) for t in grain]
+    fits = [k for k, tint in enumerate(tints) if tint.max() <= 1.2] or [int(np.argmin([t.max() for t in tints]))]
+    k = fits[int(rng.integers(len(fits)))]
+    t, tint = grain[k], tints[k]
+    tint = tuple(float(round(c, 3)) for c in tint / max(1.0, float(tint.max())))
+    mat = SceneMaterial(texture=str(t.path), uv_scale=1.0, base_color=tint, roughness=_step(rng.uniform(0.35, 0.6)),
+                        **_relief(rng, cache, "wood", (0.1, 0.3)))
+    return {name: mat for name in top_materials(item, cache)}
+
+
+@lru_cache(maxsize=64)
+def texture_mean(path: str) -> np.ndarray:
+    """The mean linear colour of an sRGB texture file (as the renderers decode it)."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        im.draft("RGB", (256, 256))
+        a = np.asarray(im.convert("RGB").resize((256, 256)), np.float32) / 255.0
+    return srgb_to_linear(a).reshape(-1, 3).mean(axis=0)
 
 
 def _lights(rng, W: float, D: float, H: float, window, placed, small, params: RoomParams) -> list[LightDef]:
@@ -647,7 +717,7 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     kind = kind or params.kinds[int(rng.integers(len(params.kinds)))]
     W, D, H, window = _room_shape(rng, params)
     library = textures.available(cache)
-    meshes, credits = _shell(rng, W, D, H, window, cache, library, carpet=kind in ("office", "office_desk", "lab"))
+    meshes, credits = _shell(rng, W, D, H, window, cache, library, office=kind in OFFICE_KINDS)
     items = _fits(kind_items(kind, params.categories), W, D, H)
     if not items:
         raise furniture.LibraryError(f"no furniture of kind {kind!r} fits a {W:.1f} x {D:.1f} x {H:.1f} m room")
@@ -655,7 +725,8 @@ def random_room(seed: int, cache: Path, kind: str | None = None,
     placed = furnish(rng, items, W, D, window, n_wall=int(rng.integers(params.wall_pieces[0], params.wall_pieces[1] + 1)),
                      n_middle=int(rng.integers(params.middle_pieces[0], params.middle_pieces[1] + 1)), worktops=worktops,
                      island=params.islands)
-    pieces, dressed = _furniture_meshes(rng, placed, cache, library)
+    pieces, dressed = _furniture_meshes(rng, placed, cache, library, finish_rng=np.random.default_rng((seed, 16)),
+                                       office=kind in OFFICE_KINDS)
     meshes += pieces
     credits += [p.item.credit for p in placed] + dressed
     desk_meshes, desk_lights, desk_credits, focus = dress_worktops(rng, placed, cache, params.density, params.boards)
