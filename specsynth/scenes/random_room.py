@@ -624,7 +624,7 @@ def _furniture_meshes(rng, placed: list[Placed], cache: Path, library, finish_rn
 
 def top_materials(item: furniture.FurnitureItem, cache: Path) -> list[str]:
     """The names of a desk's or bench's materials that make its top: its woods (by name) and its
-    textured materials, not its metal, plastic, rubber or glass parts."""
+    textured materials, not its metal, rubber or glass parts, legs, handles or locks."""
     from ..assets.meshfiles import obj as obj_reader
 
     names = []
@@ -637,8 +637,9 @@ def top_materials(item: furniture.FurnitureItem, cache: Path) -> list[str]:
 
 def finish_top(rng, item: furniture.FurnitureItem, cache: Path, grain: list) -> dict[str, SceneMaterial]:
     """One finish of ``DESK_FINISHES`` for all of a worktop's top materials: a light wood texture
-    tinted so that its mean colour is the finish's -> ``materials:`` overrides. The finish is
-    darker than drawn only where no grain texture is light enough for it (a tint is at most 1)."""
+    tinted so that its mean colour is the finish's -> ``materials:`` overrides. A tint is at most
+    1, so a finish comes out up to a sixth darker than drawn on a grain texture that is nearly light
+    enough for it, and darker still where none is."""
     target = srgb_to_linear(np.array(DESK_FINISHES[int(rng.integers(len(DESK_FINISHES)))]))
     target = target * float(rng.uniform(0.9, 1.05))
     tints = [target / np.maximum(texture_mean(str(t.path)), 1e-3) for t in grain]
