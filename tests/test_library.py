@@ -396,7 +396,7 @@ def test_desk_tops_are_finished_as_office_desks_light_and_near_neutral(cache):
             done = rr.finish_top(np.random.default_rng((k, seed)), item, cache, grain)
             assert set(done) == set(tops) and len({m.model_dump_json() for m in done.values()}) <= 1
             for m in list(done.values())[:1]:
-                mean = linear_to_srgb(rr.texture_mean(m.texture) * np.array(m.base_color))
+                mean = linear_to_srgb(rr.mean_linear_colour(Path(m.texture)) * np.array(m.base_color))
                 h, s, v = colorsys.rgb_to_hsv(*mean)
                 # the drawn finish within the brightness draw (0.9-1.05 in linear light), or darker where no grain is light enough
                 assert s <= 0.4 and np.abs(finishes / finishes.max(1, keepdims=True) - mean / mean.max()).max(1).min() < 0.05

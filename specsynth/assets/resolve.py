@@ -680,7 +680,7 @@ def _convert_catalogue(src: _Source, cache: Path) -> MeshData:
     for part in parts:
         colour = np.asarray(part.material.base_color, np.float64)
         if part.material.texture:
-            colour = colour * _mean_linear_colour(Path(part.material.texture))
+            colour = colour * mean_linear_colour(Path(part.material.texture))
         srgb = np.clip(np.rint(linear_to_srgb(colour) * 255), 0, 255).astype(np.uint8)
         rgba = np.tile(np.append(srgb, 255).astype(np.uint8), (len(part.mesh.vertices), 1))
         meshes.append(replace(part.mesh, uv=None, colors=rgba))
@@ -690,7 +690,9 @@ def _convert_catalogue(src: _Source, cache: Path) -> MeshData:
     return finish_mesh(mesh, src.label)
 
 
-def _mean_linear_colour(path: Path) -> np.ndarray:
+@functools.lru_cache(maxsize=64)
+def mean_linear_colour(path: Path) -> np.ndarray:
+    """The mean linear colour of an sRGB texture file (as the renderers decode it)."""
     from PIL import Image
 
     with Image.open(path) as im:

@@ -14,13 +14,13 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, replace
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from ..assets.library import furniture, pmndrs, printed, textures
 from ..assets.library import pictures as picture_library
+from ..assets.resolve import mean_linear_colour
 from ..model.colour import kelvin_rgb, srgb_to_linear
 from . import props
 from .models import FocusArea, LightDef, SceneFile, SceneMaterial, SceneMesh, Transform, World
@@ -642,7 +642,7 @@ def finish_top(rng, item: furniture.FurnitureItem, cache: Path, grain: list) -> 
     enough for it, and darker still where none is."""
     target = srgb_to_linear(np.array(DESK_FINISHES[int(rng.integers(len(DESK_FINISHES)))]))
     target = target * float(rng.uniform(0.9, 1.05))
-    tints = [target / np.maximum(texture_mean(str(t.path)), 1e-3) for t in grain]
+    tints = [target / np.maximum(mean_linear_colour(Path(t.path)), 1e-3) for t in grain]
     fits = [k for k, tint in enumerate(tints) if tint.max() <= 1.2] or [int(np.argmin([t.max() for t in tints]))]
     k = fits[int(rng.integers(len(fits)))]
     t, tint = grain[k], tints[k]
@@ -650,17 +650,6 @@ def finish_top(rng, item: furniture.FurnitureItem, cache: Path, grain: list) -> 
     mat = SceneMaterial(texture=str(t.path), uv_scale=1.0, base_color=tint, roughness=_step(rng.uniform(0.35, 0.6)),
                         **_relief(rng, cache, "wood", (0.1, 0.3)))
     return {name: mat for name in top_materials(item, cache)}
-
-
-@lru_cache(maxsize=64)
-def texture_mean(path: str) -> np.ndarray:
-    """The mean linear colour of an sRGB texture file (as the renderers decode it)."""
-    from PIL import Image
-
-    with Image.open(path) as im:
-        im.draft("RGB", (256, 256))
-        a = np.asarray(im.convert("RGB").resize((256, 256)), np.float32) / 255.0
-    return srgb_to_linear(a).reshape(-1, 3).mean(axis=0)
 
 
 def _lights(rng, W: float, D: float, H: float, window, placed, small, params: RoomParams) -> list[LightDef]:
