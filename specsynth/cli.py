@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -511,11 +512,13 @@ def cmd_fit(args) -> int:
     if out.exists() and not out.is_file():
         raise FileNotFoundError(f"{out}: not a file to write the fitted spec to")
     real = measure(real_split, args.models, args.jobs, log)
+    jobs = args.jobs or os.cpu_count() or 1
     edits = [] if args.keep_cameras else fit.geometry_edits(real, args.real)
     if args.probe_images:
         probe = _fit_probe(args, edits, log)
         fmt = "png" if {p.rgb.suffix.lower().lstrip(".") for p in real_split.iter_images()} == {"png"} else None
-        sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, fmt, seed=loaded.spec.seed)
+        sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, fmt, seed=loaded.spec.seed,
+                                       jobs=jobs)
         stops = 0.0
         for _ in range(REPROBES):  # clipped, a probe also looks darker than it is: the next one clips less
             again = fit.reprobe_exposure([rgb for rgb, _ in probe], cam)
@@ -526,7 +529,7 @@ def cmd_fit(args) -> int:
                 f"(median); rendering it again at {stops:+.2f} stops")
             probe = _fit_probe(args, edits, log, exposure=stops)
             sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, fmt, seed=loaded.spec.seed,
-                                           probe_stops=stops)
+                                           probe_stops=stops, jobs=jobs)
         edits += sensor
         if not args.no_object_colours:
             same = _same_models(loaded, Path(args.models) if args.models else real_split.models)
@@ -614,7 +617,6 @@ def _fit_probe(args, edits, log, exposure: float = 0.0) -> list:
 
 def _write_validated(out: Path, text: str) -> None:
     """Write the fitted spec only once it validates (beside its destination, renamed onto it)."""
-    import os
     import tempfile
 
     from .plan.compiler import compile_spec

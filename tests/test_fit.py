@@ -61,6 +61,17 @@ def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
     assert all(e.comment.startswith("fit: ") for e in edits.values())
 
 
+def test_the_sensor_fit_in_two_processes_is_the_fit_in_one(real_photos):
+    """The probe developed in worker processes gives the same edits, number for number."""
+    from specsynth.views.sensor import process
+
+    made = [process(srgb8_to_linear(im) * 2.0 ** 0.7, 1.2, 1.3) for im in real_photos]
+    one, cam_one = fit.sensor_edits(_stats_of(made), real_photos, "test", None, seed=2)
+    two, cam_two = fit.sensor_edits(_stats_of(made), real_photos, "test", None, seed=2, jobs=2)
+    assert [(e.field, e.value, e.comment) for e in one] == [(e.field, e.value, e.comment) for e in two]
+    assert cam_one == cam_two and cam_one.stops != 0.0
+
+
 def _dead_leaves(seed: int, h: int = 240, w: int = 320, n: int = 400) -> np.ndarray:
     """A dead-leaves chart (overlapping discs of random colours, linear RGB), as camera sharpness is
     tested with: steps of every contrast, perfectly sharp and without halos."""
@@ -256,7 +267,7 @@ def test_a_halo_out_of_reach_gets_the_sharpening_at_its_peak():
     lin = [_dead_leaves(k, 120, 160, 100) for k in range(3)]  # sharp: its halo peaks before 3 (measured: at 2.25)
     normals = [np.zeros_like(x) for x in lin]
     cam = fit.Camera()
-    v = fit._sharpening(lin, cam, 10.0, normals)
+    v = fit._sharpening(fit.Probe(lin, normals), cam, 10.0)
 
     def halo_at(a: float) -> float:
         return float(np.median([fit._stat("halo", process(x, sharpening=a)) for x in lin]))

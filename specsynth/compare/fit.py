@@ -169,15 +169,62 @@ def _stat(name: str, rgb8: np.ndarray) -> float:
     return noise_level(luma(rgb8))
 
 
-def _probe_median(lin, cam: Camera, stat: str, normals=None) -> float:
-    """The median ``stat`` of the probe developed by ``cam`` (with its noise when ``normals``)."""
-    return _median([_stat(stat, cam.develop(x, n)) for x, n in zip(lin, normals or [None] * len(lin))])
+class Probe:
+    """The probe in linear light and the noise drawn for each of its images, developed under a
+    camera and measured in ``jobs`` processes (each image on its own: the numbers are those of one
+    process). A context manager: the processes end with it."""
+
+    def __init__(self, lin: list[np.ndarray], normals: list[np.ndarray] | None = None, jobs: int = 1):
+        self.lin, self.normals = lin, normals if normals is not None else [None] * len(lin)
+        self.jobs, self._pool = max(1, min(int(jobs), len(lin))), None
+
+    def __enter__(self) -> "Probe":
+        if self.jobs > 1:
+            import multiprocessing
+
+            # fork: the workers inherit the probe's arrays instead of receiving a pickled copy
+            self._pool = multiprocessing.get_context("fork").Pool(self.jobs, _init_worker, (self.lin, self.normals))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+            self._pool = None
+
+    def stats(self, cam: Camera, names: tuple[str, ...], noise: bool = True) -> list[tuple[float, ...]]:
+        """Per image, ``names``' statistics of the probe developed by ``cam`` (with its noise)."""
+        tasks = [(k, cam, names, noise) for k in range(len(self.lin))]
+        if self._pool is None:
+            return [_image_stats(self.lin[k], self.normals[k] if noise else None, cam, names) for k, *_ in tasks]
+        return self._pool.map(_worker_stats, tasks, chunksize=max(1, len(tasks) // (4 * self.jobs)))
+
+    def median(self, cam: Camera, stat: str, noise: bool = True) -> float:
+        """The median ``stat`` of the probe developed by ``cam``."""
+        return _median([v[0] for v in self.stats(cam, (stat,), noise)])
 
 
-def _search(lin, cam: Camera, field: str, stat: str, lo: float, hi: float, target: float, increasing: bool,
-            normals=None) -> float:
+def _image_stats(x: np.ndarray, normal, cam: Camera, names: tuple[str, ...]) -> tuple[float, ...]:
+    image = cam.develop(x, normal)
+    return tuple(_stat(name, image) for name in names)
+
+
+_WORKER_PROBE: dict[str, list] = {}  # a fit worker's probe (its process only, set once at its start)
+
+
+def _init_worker(lin, normals) -> None:
+    _WORKER_PROBE.update(lin=lin, normals=normals)
+
+
+def _worker_stats(task) -> tuple[float, ...]:
+    k, cam, names, noise = task
+    return _image_stats(_WORKER_PROBE["lin"][k], _WORKER_PROBE["normals"][k] if noise else None, cam, names)
+
+
+def _search(probe: Probe, cam: Camera, field: str, stat: str, lo: float, hi: float, target: float,
+            increasing: bool) -> float:
     """The value of ``field`` within [lo, hi] that brings the probe's median ``stat`` to ``target``."""
-    return _bisect(lambda v: _probe_median(lin, replace(cam, **{field: v}), stat, normals), lo, hi, target, increasing)
+    return _bisect(lambda v: probe.median(replace(cam, **{field: v}), stat), lo, hi, target, increasing)
 
 
 # Sharpening amounts a fit tries, and how close to the real halo counts as there. A halo grows with
@@ -187,14 +234,14 @@ SHARPENING_STEPS = tuple(float(v) for v in np.round(np.arange(0.0, 3.01, 0.25), 
 HALO_TOLERANCE = 0.01
 
 
-def _sharpening(lin, cam: Camera, target: float, normals) -> float:
+def _sharpening(probe: Probe, cam: Camera, target: float) -> float:
     """0 when the unsharpened probe's median halo is within ``HALO_TOLERANCE`` of ``target`` or above
     it; else the first of ``SHARPENING_STEPS`` whose probe median halo reaches ``target``, or the
     step before it when that one is nearer; the step with the largest halo when none does (the
     steps stop once the halo falls: past its peak, more sharpening clips more of it)."""
     tried: list[tuple[float, float]] = []
     for v in SHARPENING_STEPS:
-        h = _probe_median(lin, replace(cam, sharpening=v), "halo", normals)
+        h = probe.median(replace(cam, sharpening=v), "halo")
         if h >= target - (HALO_TOLERANCE if v == 0 else 0.0):
             return tried[-1][0] if tried and abs(tried[-1][1] - target) < abs(h - target) else v
         if tried and h < tried[-1][1]:
@@ -224,7 +271,7 @@ def reprobe_exposure(probe_rgb8: list[np.ndarray], cam: "Camera") -> float | Non
     return None
 
 
-def _colour_offset(lin, cam: Camera, real: Collected, normals):
+def _colour_offset(probe: Probe, cam: Camera, real: Collected):
     """Saturation factor -> how far the probe's colour is from the real images', in real spreads:
     the offsets of its median HSV saturation and median colourfulness, summed. Both grow with the
     factor; matching one alone can leave the other far (dark pixels count fully in HSV saturation,
@@ -233,44 +280,55 @@ def _colour_offset(lin, cam: Camera, real: Collected, normals):
     s = {k: spread(real.images[k]) for k in COLOUR_STATS}
 
     def offset(v: float) -> float:
-        images = [replace(cam, saturation=v).develop(x, n) for x, n in zip(lin, normals)]
-        return sum((_median([_stat(k, im) for im in images]) - t[k]) / s[k] for k in COLOUR_STATS)
+        per_image = np.asarray(probe.stats(replace(cam, saturation=v), COLOUR_STATS))
+        return sum((_median(per_image[:, i]) - t[k]) / s[k] for i, k in enumerate(COLOUR_STATS))
     return offset
 
 
 def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, real_format: str | None,
-                 seed: int = 0, probe_stops: float = 0.0) -> tuple[list[Edit], Camera]:
+                 seed: int = 0, probe_stops: float = 0.0, jobs: int = 1) -> tuple[list[Edit], Camera]:
     """Exposure and tone curve (searched in turn, twice: each moves the other's statistic), colour
     saturation (HSV saturation and colourfulness together), blur and shot noise that bring the
     probe's medians to the real ones, and the real images' format -> (the edits, the camera found,
-    whose exposure is relative to the probe's ``probe_stops``)."""
+    whose exposure is relative to the probe's ``probe_stops``). ``jobs``: processes developing the
+    probe; the result is the same for any number."""
     lin = [srgb8_to_linear(p) for p in probe_rgb8]
-    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "halo", "noise")}
     normals = [np.random.default_rng([seed, k]).standard_normal(x.shape) for k, x in enumerate(lin)]
+    with Probe(lin, normals, jobs) as probe:
+        cam, probe_s, probe_n = _fit_camera(real, probe)
+        return _edits(real, probe, cam, probe_s, probe_n, real_format, probe_stops), cam
+
+
+def _fit_camera(real: Collected, probe: Probe) -> tuple[Camera, float, float]:
+    """The camera that brings the probe's medians to the real ones -> (it, the probe's sharpness
+    unblurred, the probe's noise without shot noise)."""
+    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "sharpness", "halo", "noise")}
     cam = Camera()
     for _ in range(2):  # each setting moves the others' statistics a little: a second pass settles them
         for _ in range(2):
-            cam.stops = _search(lin, cam, "stops", "brightness", -5.0, 5.0, t["brightness"], True, normals)
-            cam.contrast = _search(lin, cam, "contrast", "contrast", 1.0, 3.0, t["contrast"], True, normals)
-        cam.saturation = _bisect(_colour_offset(lin, cam, real, normals), 0.5, 2.5, 0.0, True)
+            cam.stops = _search(probe, cam, "stops", "brightness", -5.0, 5.0, t["brightness"], True)
+            cam.contrast = _search(probe, cam, "contrast", "contrast", 1.0, 3.0, t["contrast"], True)
+        cam.saturation = _bisect(_colour_offset(probe, cam, real), 0.5, 2.5, 0.0, True)
         # Sharpening, then the blur that brings the sharpened edges to the real width; in turn,
         # twice: blur takes halos away, sharpening steepens edges.
         for _ in range(2 if np.isfinite(t["halo"]) else 1):
             if np.isfinite(t["halo"]):
-                cam.sharpening = _sharpening(lin, cam, t["halo"], normals)
-            probe_s = _probe_median(lin, replace(cam, sigma=0.0), "sharpness", normals)
+                cam.sharpening = _sharpening(probe, cam, t["halo"])
+            probe_s = probe.median(replace(cam, sigma=0.0), "sharpness")
             cam.sigma = 0.0
             if probe_s > t["sharpness"] * (1.0 + SHARPNESS_TOLERANCE):
-                cam.sigma = _search(lin, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False, normals)
-        probe_n = _median([_stat("noise", replace(cam, shot=0.0).develop(x)) for x in lin])
-        cam.shot = _search(lin, cam, "shot", "noise", 0.0, 0.2, t["noise"], True, normals) if probe_n < t["noise"] else 0.0
-    return _edits(real, lin, cam, probe_s, probe_n, t, real_format, probe_stops, normals), cam
+                cam.sigma = _search(probe, cam, "sigma", "sharpness", 0.0, 4.0, t["sharpness"], False)
+        probe_n = probe.median(replace(cam, shot=0.0), "noise", noise=False)
+        cam.shot = _search(probe, cam, "shot", "noise", 0.0, 0.2, t["noise"], True) if probe_n < t["noise"] else 0.0
+    return cam, probe_s, probe_n
 
 
-def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t: dict, real_format,
-           probe_stops: float, normals) -> list[Edit]:
+def _edits(real: Collected, probe: Probe, cam: Camera, probe_s: float, probe_n: float, real_format,
+           probe_stops: float) -> list[Edit]:
+    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "halo", "noise")}
     real_b = summary(real.images["brightness"])
-    width = _stops_spread(real_b) - _stops_spread(summary([_stat("brightness", cam.develop(x)) for x in lin]))
+    probe_b = summary([v[0] for v in probe.stats(cam, ("brightness",), noise=False)])
+    width = _stops_spread(real_b) - _stops_spread(probe_b)
     half = round(max(0.0, width) / 2.0, 2)
     sigma = round(cam.sigma, 2)
     stops = probe_stops + cam.stops
@@ -288,7 +346,7 @@ def _edits(real: Collected, lin, cam: Camera, probe_s: float, probe_n: float, t:
              f"fit: real noise median {t['noise']:.2f} levels, the probe's {probe_n:.2f}"),
     ]
     if np.isfinite(t["halo"]):
-        probe_halo = _probe_median(lin, cam, "halo", normals)
+        probe_halo = probe.median(cam, "halo")
         out.append(Edit("sensor.sharpening", cam.sharpening,
                         f"fit: real sharpening halo median {t['halo']:.3f}, the probe's {probe_halo:.3f}"))
     if real_format == "png":
