@@ -83,6 +83,23 @@ def test_every_printed_kind_draws_the_same_image_twice(tmp_path):
         printed.printed(tmp_path, "postcard", 0)
 
 
+def test_some_pages_are_on_coloured_paper_and_screens_show_colour_photographs(tmp_path):
+    from PIL import Image
+
+    def corner(kind, i):  # the paper's colour: the page's top left corner, inside its margin
+        with Image.open(printed.printed.__wrapped__(tmp_path, kind, i).path) as im:
+            return im.convert("RGB").getpixel((3, 3))
+
+    papers = [corner("page", i) for i in range(printed.VARIANTS["page"])]
+    coloured = [p for p in papers if max(p) - min(p) > 12]
+    assert 3 <= len(coloured) <= 12  # about COLOURED_PAPER of 24
+    assert all(p in printed.PAPER_COLOURS for p in coloured)
+    for i in range(printed.VARIANTS["screen"]):
+        with Image.open(printed.printed.__wrapped__(tmp_path, "screen", i).path) as im:
+            hsv = np.asarray(im.convert("RGB").convert("HSV"), np.float32)
+        assert hsv[..., 1].mean() > 20, i  # not the black-and-white photograph with a few windows on it
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(2, 7), st.floats(0.001, 0.02))
 def test_a_tube_is_a_closed_solid_of_its_radius_along_its_curve(seed, n, radius):

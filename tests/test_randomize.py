@@ -266,7 +266,7 @@ def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share):
     import colorsys
 
     from specsynth.model.colour import linear_to_srgb
-    from specsynth.run.arrange import paint_color
+    from specsynth.run.arrange import PLASTIC_HUE_JITTER, PLASTIC_HUES, paint_color
 
     rng = np.random.default_rng(seed)
     colours = [paint_color(share, rng) for _ in range(200)]
@@ -278,4 +278,6 @@ def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share):
     assert abs(len(painted) / 200 - share) < 0.2
     for c in painted:
         h, s, v = colorsys.rgb_to_hsv(*linear_to_srgb(np.asarray(c)))
-        assert 0.55 - 1e-6 <= s <= 0.95 + 1e-6 and 0.45 - 1e-6 <= v <= 0.95 + 1e-6
+        assert 0.6 - 1e-6 <= s <= 0.95 + 1e-6 and 0.6 - 1e-6 <= v <= 1.0 + 1e-6
+        # a toy's hue: within the jitter of one of the palette's (on the hue circle)
+        assert min(abs((h - hue + 0.5) % 1.0 - 0.5) for hue, _ in PLASTIC_HUES) <= PLASTIC_HUE_JITTER + 1e-4

@@ -21,8 +21,9 @@ from typing import Any
 # collision hulls of at most 1024 support points (physics.HULL_DIRECTIONS). render 4: files recorded by
 # kind (ImageRecord.files) and written by registered products: a render job of an earlier version is
 # run again, never read. arrange 5: standing distractors with no free spot are left out, not stacked
-# (physics.arrange's unstacked); distractors may be painted.
-STAGE_VERSIONS = {"arrange": 5, "view": 2, "render": 4}
+# (physics.arrange's unstacked); distractors may be painted. arrange 6: paint in a toy's hues
+# (run.arrange.PLASTIC_HUES), not any hue.
+STAGE_VERSIONS = {"arrange": 6, "view": 2, "render": 4}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 

@@ -311,9 +311,9 @@ class Distractors(Strict):
         "small items (books, cups, plants, toys; `specsynth furniture`), or one of them as 'catalogue/<id>'.")
     paint: float = Field(
         0.0, ge=0.0, le=1.0,
-        description="Share of the distractors painted one random plastic colour (hue uniform, HSV saturation "
-        "0.55-0.95, value 0.45-0.95), replacing the model's own colours and colour texture (a plastic: neither metal nor "
-        "glass), as toys and office plastics come in every colour: 0 keeps every model's own look. Each distractor is "
+        description="Share of the distractors painted one random plastic colour (a toy's: mostly yellow, red, blue, some "
+        "orange, green and pink; HSV saturation 0.6-0.95, value 0.6-1), replacing the model's own colours and colour "
+        "texture (a plastic: neither metal nor glass): 0 keeps every model's own look. Each distractor is "
         "painted or not by its own draw; an annotated one keeps its model's own colours in bop/models.")
     annotate: bool = Field(
         False, description="Annotate the distractors too (BOP's 'other objects'): each distractor model gets an obj_id "

@@ -31,6 +31,7 @@ class Picture:
     aspect: float  # width / height
     author: str
     licence: str
+    colour: bool = True  # False: a black-and-white photograph
 
     @property
     def credit(self) -> dict[str, str]:
@@ -49,5 +50,5 @@ def available() -> list[Picture]:
         path = root / file
         if path.is_file():
             with Image.open(path) as im:
-                out.append(Picture(name, path, im.width / im.height, author, licence))
+                out.append(Picture(name, path, im.width / im.height, author, licence, im.mode not in ("L", "LA", "1")))
     return out

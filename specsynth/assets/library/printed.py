@@ -23,11 +23,12 @@ import numpy as np
 from ...atomic import atomic_write_bytes
 from . import pictures
 
-VERSION = 4  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards.
-# 4: the boards' black at BLACK (it was 12, 0.4 % reflectance)
+VERSION = 5  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards.
+# 4: the boards' black at BLACK (it was 12, 0.4 % reflectance). 5: coloured paper; screens, covers and
+# posters show colour photographs only; half of the posters graphic.
 # Variants drawn per kind (a scene picks among them by its seed) and each kind's size in pixels.
 VARIANTS = {"page": 24, "magazine": 24, "board": 6, "cover": 24, "keyboard": 3, "screen": 12, "cardboard": 6,
-            "poster": 8}
+            "poster": 16}
 SIZES = {"page": (620, 877), "magazine": (560, 740), "board": (980, 700), "cover": (300, 440),
          "keyboard": (880, 290), "screen": (960, 540), "cardboard": (512, 512), "poster": (600, 840)}
 # Printed black: 57 of 255 (sRGB), 4 % reflectance, as toner or offset black on paper reflects (an
@@ -35,6 +36,15 @@ SIZES = {"page": (620, 877), "magazine": (560, 740), "board": (980, 700), "cover
 # their paper's 0.85 at the strongest edges, 4.9 % apart in linear light through lmo_pbr_h's fitted
 # tone curve; at 0.4 % a render's board black went to 0 there.
 BLACK = 57
+# Coloured copier paper (sRGB): yellow, orange, pink, green, blue; a share of the pages is printed on
+# it. The desks of the LM-O test photographs have yellow sheets and red and orange prints; their
+# strongly coloured pixels are mostly yellow and red (docs/realism.md), and white paper gave none.
+PAPER_COLOURS = ((252, 234, 105), (250, 196, 118), (245, 186, 196), (192, 230, 168), (176, 208, 240))
+COLOURED_PAPER = 0.3
+# Process-ink colours (sRGB) that graphic posters are laid out in: the inks' primaries and their
+# two-ink mixes, as printed colour fields come out; and paper white and black.
+PRINT_COLOURS = ((250, 220, 0), (230, 0, 126), (0, 160, 227), (226, 30, 36), (0, 150, 64), (45, 46, 131),
+                 (244, 244, 240), (30, 30, 30))
 KIND_CODE = {k: i for i, k in enumerate(sorted(VARIANTS))}
 FONT_CREDIT = {"asset": "font:aileron", "name": "Aileron Regular (the font built into Pillow)",
                "author": "Sora Sagano (dotcolon.net)", "licence": "CC0-1.0", "source": "Pillow"}
@@ -67,11 +77,12 @@ def _words(rng, n: int) -> list[str]:
     return ["".join(rng.choice(list(letters), size=int(rng.integers(2, 10)), p=p)) for _ in range(n)]
 
 
-def _photograph(rng, size: tuple[int, int]):
-    """A crop of one of the sample photographs filling ``size`` -> (image, its credit)."""
+def _photograph(rng, size: tuple[int, int], colour: bool = False):
+    """A crop of one of the sample photographs filling ``size`` -> (image, its credit); ``colour``:
+    of the colour ones only (a screen or a cover shows no black-and-white photograph)."""
     from PIL import Image
 
-    pics = pictures.available()
+    pics = [p for p in pictures.available() if p.colour or not colour]
     pic = pics[int(rng.integers(len(pics)))]
     with Image.open(pic.path) as im:
         im = im.convert("RGB")
@@ -111,7 +122,10 @@ def _page(rng, size):
 
     w, h = size
     tint = int(rng.integers(232, 252))
-    im = Image.new("RGB", size, (tint, tint, int(tint - rng.integers(0, 10))))
+    paper = (tint, tint, int(tint - rng.integers(0, 10)))
+    if rng.random() < COLOURED_PAPER:
+        paper = PAPER_COLOURS[int(rng.integers(len(PAPER_COLOURS)))]
+    im = Image.new("RGB", size, paper)
     d = ImageDraw.Draw(im)
     m = int(w * 0.1)
     ink = tuple(int(v) for v in rng.integers(10, 60, 3))
@@ -190,7 +204,7 @@ def _cover_page(rng, size):
     from PIL import ImageDraw
 
     w, h = size
-    im, credit = _photograph(rng, size)
+    im, credit = _photograph(rng, size, colour=True)
     d = ImageDraw.Draw(im)
     title = _words(rng, 1)[0].upper()[:7]
     colour = _colour(rng, 0.7, 1.0)
@@ -285,7 +299,7 @@ def _screen(rng, size):
     from PIL import ImageDraw
 
     w, h = size
-    im, credit = _photograph(rng, size)
+    im, credit = _photograph(rng, size, colour=True)
     d = ImageDraw.Draw(im)
     for _ in range(int(rng.integers(0, 3))):  # windows
         x0, y0 = int(rng.uniform(0.05, 0.5) * w), int(rng.uniform(0.05, 0.4) * h)
@@ -316,14 +330,43 @@ def _cardboard(rng, size):
 
 
 def _poster(rng, size):
+    """Half of them a photograph with a coloured band and a title; the others graphic, as
+    advertisements and magazine covers are: fields of printing-ink colours, a photograph in a
+    frame, a title and lines of text."""
+    return _photo_poster(rng, size) if rng.random() < 0.5 else _graphic_poster(rng, size)
+
+
+def _photo_poster(rng, size):
     from PIL import ImageDraw
 
     w, h = size
-    im, credit = _photograph(rng, size)
+    im, credit = _photograph(rng, size, colour=True)
     d = ImageDraw.Draw(im)
     d.rectangle((0, int(h * 0.8), w, h), fill=_colour(rng, 0.1, 0.6))
     d.text((int(w * 0.06), int(h * 0.83)), " ".join(_words(rng, 2)).upper(), fill=(250, 250, 250),
            font=_font(int(h * 0.06)))
+    return im, [credit]
+
+
+def _graphic_poster(rng, size):
+    from PIL import Image, ImageDraw
+
+    w, h = size
+    inks = [PRINT_COLOURS[int(k)] for k in rng.permutation(len(PRINT_COLOURS))]
+    im = Image.new("RGB", size, inks[0])
+    d = ImageDraw.Draw(im)
+    for ink in inks[1:int(rng.integers(3, 5))]:  # two or three fields, from an edge
+        across = float(rng.uniform(0.2, 0.5))
+        box = [(0, 0, w, int(h * across)), (0, int(h * (1 - across)), w, h), (0, 0, int(w * across), h),
+               (int(w * (1 - across)), 0, w, h)][int(rng.integers(4))]
+        d.rectangle(box, fill=ink)
+    x0, y0 = int(w * rng.uniform(0.08, 0.3)), int(h * rng.uniform(0.2, 0.45))
+    pw, ph = int(w * rng.uniform(0.45, 0.62)), int(h * rng.uniform(0.25, 0.4))
+    picture, credit = _photograph(rng, (pw, ph), colour=True)
+    im.paste(picture, (x0, y0))
+    ink = (250, 250, 250) if sum(inks[0]) < 400 else (20, 20, 20)
+    d.text((int(w * 0.06), int(h * 0.04)), _words(rng, 1)[0].upper()[:8], fill=ink, font=_font(int(h * 0.1)))
+    _text_block(d, rng, int(w * 0.06), int(h * 0.78), int(w * 0.94), int(h * 0.96), int(h * 0.025), ink)
     return im, [credit]
 
 
