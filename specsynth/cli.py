@@ -515,11 +515,11 @@ def cmd_fit(args) -> int:
     jobs = args.jobs or os.cpu_count() or 1
     edits = [] if args.keep_cameras else fit.geometry_edits(real, args.real)
     if args.probe_images:
-        probe = _fit_probe(args, edits, log)
+        stops = first_probe_stops(loaded.spec)
+        probe = _fit_probe(args, edits, log, exposure=stops)
         fmt = "png" if {p.rgb.suffix.lower().lstrip(".") for p in real_split.iter_images()} == {"png"} else None
         sensor, cam = fit.sensor_edits(real, [rgb for rgb, _ in probe], args.real, fmt, seed=loaded.spec.seed,
-                                       jobs=jobs)
-        stops = 0.0
+                                       probe_stops=stops, jobs=jobs)
         for _ in range(REPROBES):  # clipped, a probe also looks darker than it is: the next one clips less
             again = fit.reprobe_exposure([rgb for rgb, _ in probe], cam)
             if again is None:
@@ -577,6 +577,14 @@ def _same_models(loaded, real_models: Path | None) -> set[int]:
 
 
 REPROBES = 2  # probes rendered again at the exposure found, at most (each costs what the first did)
+
+
+def first_probe_stops(spec) -> float:
+    """The exposure a fit renders its first probe at: the middle of the spec's own exposure range.
+    A spec fitted before is then probed where its images are, and a probe of its rooms at 0 stops
+    that clips (and is rendered again at the exposure found) is not rendered first."""
+    lo, hi = spec.sensor.exposure
+    return round((lo + hi) / 2.0, 2)
 
 
 def probe_overrides(edits, arrangements: int, exposure: float) -> list[str]:

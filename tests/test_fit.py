@@ -286,3 +286,12 @@ def test_the_probe_is_rendered_with_a_neutral_sensor_whatever_the_spec_sets():
     assert (sensor.exposure, sensor.contrast, sensor.saturation, sensor.sharpening, sensor.blur,
             sensor.shot_noise, sensor.read_noise) == ((-1.0, -1.0), 1.0, 1.0, 0.0, None, 0.0, 0.0)
     assert sensor.auto_exposure and sensor.auto_white_balance  # as the spec asks: the real camera's
+
+
+def test_a_fitted_spec_is_probed_first_at_its_own_exposure():
+    from specsynth.cli import first_probe_stops
+
+    spec = load_spec(ROOT / "specs" / "lmo_pbr_h.yaml", []).spec
+    lo, hi = spec.sensor.exposure
+    assert lo < hi < 0 and first_probe_stops(spec) == round((lo + hi) / 2, 2)
+    assert first_probe_stops(load_spec(ROOT / "specs" / "lmo_pbr_h.yaml", ["sensor.exposure=[0, 0]"]).spec) == 0.0
