@@ -294,15 +294,15 @@ def sensor_edits(real: Collected, probe_rgb8: list[np.ndarray], source: str, rea
     probe; the result is the same for any number."""
     lin = [srgb8_to_linear(p) for p in probe_rgb8]
     normals = [np.random.default_rng([seed, k]).standard_normal(x.shape) for k, x in enumerate(lin)]
+    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "halo", "noise")}
     with Probe(lin, normals, jobs) as probe:
-        cam, probe_s, probe_n = _fit_camera(real, probe)
-        return _edits(real, probe, cam, probe_s, probe_n, real_format, probe_stops), cam
+        cam, probe_s, probe_n = _fit_camera(real, probe, t)
+        return _edits(real, probe, cam, probe_s, probe_n, t, real_format, probe_stops), cam
 
 
-def _fit_camera(real: Collected, probe: Probe) -> tuple[Camera, float, float]:
-    """The camera that brings the probe's medians to the real ones -> (it, the probe's sharpness
-    unblurred, the probe's noise without shot noise)."""
-    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "sharpness", "halo", "noise")}
+def _fit_camera(real: Collected, probe: Probe, t: dict[str, float]) -> tuple[Camera, float, float]:
+    """The camera that brings the probe's medians to the real ones (``t``) -> (it, the probe's
+    sharpness unblurred, the probe's noise without shot noise)."""
     cam = Camera()
     for _ in range(2):  # each setting moves the others' statistics a little: a second pass settles them
         for _ in range(2):
@@ -323,9 +323,8 @@ def _fit_camera(real: Collected, probe: Probe) -> tuple[Camera, float, float]:
     return cam, probe_s, probe_n
 
 
-def _edits(real: Collected, probe: Probe, cam: Camera, probe_s: float, probe_n: float, real_format,
-           probe_stops: float) -> list[Edit]:
-    t = {k: _median(real.images[k]) for k in ("brightness", "contrast", "saturation", "sharpness", "halo", "noise")}
+def _edits(real: Collected, probe: Probe, cam: Camera, probe_s: float, probe_n: float, t: dict[str, float],
+           real_format, probe_stops: float) -> list[Edit]:
     real_b = summary(real.images["brightness"])
     probe_b = summary([v[0] for v in probe.stats(cam, ("brightness",), noise=False)])
     width = _stops_spread(real_b) - _stops_spread(probe_b)
