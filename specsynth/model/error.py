@@ -34,9 +34,10 @@ EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not d
 # 2: the sample counts the backend takes, the record of the image kept, stereo eyes as one.
 # 3: the target from the sampler's convergence rate measured on the image (not 1 / samples).
 # 4: with a backend's denoise and guides, the halves of every sample spent denoised together.
+# 5: the convergence rate and the target from the largest sample counts measured (RATE_RANGE).
 # (A backend that continues a render's samples, Capabilities.continues_samples, takes another
-# way, which the render key names beside the revision: the images of the others are as at 4.)
-REVISION = 4
+# way, which the render key names beside the revision.)
+REVISION = 5
 # The fastest fall of one render's variance with its samples that a target assumes: measured
 # rates above it are noise or a few-sample start (a stratified sampler is at most ~N^-1.5 on
 # smooth pixels and near 1 on the many-bounce paths that make most of a room's noise).
@@ -66,13 +67,36 @@ def extrapolated_rel_mse(a: np.ndarray, b: np.ndarray, samples: int, to_samples:
     return float(np.mean((a - b) ** 2 / 2 / (norm**2 + EPS))) * samples / to_samples
 
 
-def convergence_rate(variances: dict[int, float]) -> float | None:
+# The counts that set the rate: those within RATE_RANGE of the largest measured, reaching down to
+# the nearest count at least RATE_SPAN below it; where the rate is extrapolated over more than
+# RATE_RANGE, none until the counts span RATE_SPAN (``_paper_map``). A sampler's first samples can
+# fall faster than its later ones (Mitsuba's stratified one on a demo view at 96 x 72: samples x
+# variance 2.83 at 4 samples, 2.01 at 16, 1.82 at 64, 1.85 at 225, so the rate is 1.25 from 4 to
+# 16 and 1.0 above), and the target extrapolates from the largest counts: a rate fitted over
+# every count set the preset's error 0.72-0.91x its truth. Close counts measure no rate (one
+# pair's variance swings by ~10 %): counts 4 and 9 measured 1.29 there, set the target at 0.47x
+# the truth, and the next step took the image from 26 to 188 samples.
+RATE_RANGE = 8
+RATE_SPAN = 4
+
+
+def rate_counts(counts) -> list[int]:
+    """The sample counts, of those measured, that set the convergence rate (all of them while
+    they span less than ``RATE_SPAN``)."""
+    counts = sorted(set(counts))
+    below = [n for n in counts if n * RATE_SPAN <= counts[-1]]
+    if not below:
+        return counts
+    floor = min(below[-1], counts[-1] / RATE_RANGE)
+    return [n for n in counts if n >= floor]
+
+
+def convergence_rate(variances: dict[int, float], span: float = RATE_SPAN) -> float | None:
     """α in ``variance ∝ samples^-α`` from one render's mean variance at each sample count: the
-    least-squares slope of log variance on log samples over every count (one pair's variance
-    swings by ~10 % on a 320 x 240 room: two counts alone put the preset's error 15-20 % off),
-    within [1, MAX_RATE]; None with fewer than two counts."""
-    counts = sorted(n for n, v in variances.items() if v > 0)
-    if len(counts) < 2:
+    least-squares slope of log variance on log samples over ``rate_counts``, within [1,
+    MAX_RATE]; None until the counts span ``span``."""
+    counts = rate_counts(n for n, v in variances.items() if v > 0)
+    if len(counts) < 2 or counts[-1] < span * counts[0]:
         return None
     x = np.log(np.asarray(counts, np.float64))
     y = np.log(np.asarray([variances[n] for n in counts], np.float64))
@@ -313,11 +337,11 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
 
 def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_samples: int,
                continued: bool = False) -> tuple[np.ndarray, float | None]:
-    """Per pixel, the paper preset's estimated error: every pair's variance of one render scaled
-    from its samples to the paper's at the measured rate (1 until two counts are measured),
-    averaged with weights by samples; and the rate. ``continued``: the pairs are the same two
-    renders at each step, so the last is the least extrapolated, and the rate is the one over the
-    last two counts (a quasi-random sequence's first samples converge faster than its later ones:
+    """Per pixel, the paper preset's estimated error: the variance of one render of every pair
+    whose count sets the rate (``rate_counts``), scaled from its samples to the paper's at that
+    rate (1 until it is measured), averaged with weights by samples; and the rate.
+    ``continued``: the pairs are the same two renders at each step, so the last is the least
+    extrapolated, and the rate is the one over the last two counts (a quasi-random sequence's first samples converge faster than its later ones:
     measured on Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""
     if continued:
         pairs = pairs[-2:]
@@ -325,9 +349,16 @@ def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_sam
     by_count: dict[int, list[float]] = {}
     for n, m in maps:
         by_count.setdefault(n, []).append(float(m.mean()))
-    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()})
+    # Close counts measure a rate only where it extrapolates little (and continued halves, which grow
+    # up to ~4x a step, have their last two counts' rate).
+    near = continued or max(by_count) * RATE_RANGE >= paper_samples
+    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()}, 1.0 if near else RATE_SPAN)
     alpha = 1.0 if rate is None else rate
-    maps = maps[-1:] if continued else maps
+    if continued:
+        maps = maps[-1:]
+    elif rate is not None:  # the pairs whose counts set the rate: the others converge otherwise
+        top = set(rate_counts(by_count))
+        maps = [(n, m) for n, m in maps if n in top]
     total = sum(n for n, _ in maps)
     return sum(n * m * (n / paper_samples) ** alpha for n, m in maps) / total, rate
 
@@ -359,8 +390,9 @@ def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[in
     needs at that fall; new, larger denoised pairs (whose samples
     are all new) are chosen only at half the cost of the raw way, their fall being predicted.
     When the core denoises the halves, both ways are made of every sample spent and the next pair
-    tops them up towards the nearer. While an image's convergence rate is not measured the next pairs take at least twice the last
-    pair's samples: a second count. 0 samples: the budget is spent."""
+    tops them up towards the nearer. While an image's convergence rate is not measured the next
+    pairs take at least twice the last pair's samples (until the counts span ``RATE_SPAN`` where
+    the rate is extrapolated far). 0 samples: the budget is spent."""
     spent = max(image.spent for image in images)
     raw_need = max(1, max(image.raw_need() for image in images) - spent)
     histories, papers = [image.history for image in images], [image.paper for image in images]

@@ -624,3 +624,48 @@ def test_an_error_target_keeps_to_max_samples_with_a_rounding_sampler(tmp_path, 
             assert len(taken) == res.stats["renders"] >= 4  # more than one pair: the budget mattered
     finally:
         b.close()
+
+
+TWO_ROOMS = """\
+name: two_rooms
+seed: 5
+intrinsics: {width: 640, height: 480}
+objects:
+  builtin: [duck, mug]
+scenes:
+  - SCENE
+arrangements:
+  count: 1
+cameras:
+  per_arrangement: 1
+  distance: [0.35, 0.7]
+quality: {level: high}
+backend: {name: mitsuba, denoise: true}
+"""
+
+
+@pytest.mark.slow
+def test_two_rooms_of_very_different_noise_land_on_the_paper_presets_error(tmp_path):
+    """`high` under an error target in a plain room and in an office lit by many lamps (at 64 x 48,
+    the paper preset's error 2.7e-3 and 1.4e-2): each image's true error, against a reference of
+    twice the preset's samples, is at most 10 % over the paper preset's true error at that view,
+    and no image spends more than the preset's samples. (The target is the preset's error as the
+    image estimates it from its own renders; the true one is measured here. Measured: 1.6e-3 for
+    202 samples and 1.2e-2 for 110.)"""
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.run.bench import run_bench
+    from specsynth.spec.yamlio import load_spec
+
+    errors = {}
+    for scene in ("{name: room}", "{name: office_desk, stages: [focus]}"):
+        name = scene.split(",")[0].split()[-1].strip("}")
+        f = tmp_path / f"{name}.yaml"
+        f.write_text(TWO_ROOMS.replace("SCENE", scene))
+        rows, _ = run_bench(compile_spec(load_spec(f)), tmp_path / name, n_views=1, ref_factor=2, scale=0.1,
+                            backends=["mitsuba"], levels=("high",), only=("high", "high+targeted"))
+        [preset] = [r.views[0] for r in rows if r.setting == "high"]
+        [image] = [r.views[0] for r in rows if r.setting == "high+targeted"]
+        assert image["rel_mse"] <= 1.1 * preset["rel_mse"], (name, preset, image)
+        assert image["samples"] <= preset["samples"] == 225 and image["error_target"] > 0
+        errors[name] = preset["rel_mse"]
+    assert errors["office_desk"] > 3 * errors["room"], errors  # very different noise
