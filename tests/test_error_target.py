@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from specsynth.model.colour import linear_to_srgb8
@@ -494,13 +494,18 @@ def test_a_pair_takes_the_nearest_count_the_sampler_renders_that_fits(asked, lef
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**31), sigma=st.floats(0.05, 5.0), paper=st.integers(4, 400))
+@example(seed=2**31, sigma=1.25, paper=4)
 def test_raw_renders_stop_at_the_first_pair_that_reaches_the_paper_samples(seed, sigma, paper):
     """Without a denoiser the image is the mean of every sample: its error and the target are one
     variance, at the samples spent and at the paper's, so it stops at the first pair that brings
-    it to the paper's samples (no standard errors to spare: none are needed) and not before."""
+    it to the paper's samples, or at the next, and not before. (The next: pairs of different
+    counts make the estimate and the target differently weighted means of them, and the rate
+    measured on them is 1 only within its noise: paper 4, sigma 1.25, pairs of 1 and 2 samples
+    measured 1.03, and the bound of 6 samples was 1.645 standard errors short.)"""
     r = NoisyRenderer(scene(seed)[::4, ::4], sigma, seed)
     done = render_to_target(r, ErrorTarget(paper_samples=paper, start_samples=1, max_samples=4 * paper), linear_to_srgb8)
-    assert done.samples - 2 * r.calls[-1] < paper <= done.samples
+    assert paper <= done.samples
+    assert done.samples - 2 * r.calls[-1] < paper or done.samples - 2 * r.calls[-1] - 2 * r.calls[-3] < paper
     assert done.error <= done.target
 
 
