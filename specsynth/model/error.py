@@ -35,9 +35,10 @@ EPS = 1e-2  # the relative MSE's offset in the denominator: dark pixels do not d
 # 3: the target from the sampler's convergence rate measured on the image (not 1 / samples).
 # 4: with a backend's denoise and guides, the halves of every sample spent denoised together.
 # 5: the convergence rate and the target from the largest sample counts measured (RATE_RANGE).
+# 6: steps planned at a rate of 1 while the rate rests on close counts (few_counts), not withheld.
 # (A backend that continues a render's samples, Capabilities.continues_samples, takes another
 # way, which the render key names beside the revision.)
-REVISION = 5
+REVISION = 6
 # The fastest fall of one render's variance with its samples that a target assumes: measured
 # rates above it are noise or a few-sample start (a stratified sampler is at most ~N^-1.5 on
 # smooth pixels and near 1 on the many-bounce paths that make most of a room's noise).
@@ -68,14 +69,13 @@ def extrapolated_rel_mse(a: np.ndarray, b: np.ndarray, samples: int, to_samples:
 
 
 # The counts that set the rate: those within RATE_RANGE of the largest measured, reaching down to
-# the nearest count at least RATE_SPAN below it; where the rate is extrapolated over more than
-# RATE_RANGE, none until the counts span RATE_SPAN (``_paper_map``). A sampler's first samples can
-# fall faster than its later ones (Mitsuba's stratified one on a demo view at 96 x 72: samples x
-# variance 2.83 at 4 samples, 2.01 at 16, 1.82 at 64, 1.85 at 225, so the rate is 1.25 from 4 to
-# 16 and 1.0 above), and the target extrapolates from the largest counts: a rate fitted over
-# every count set the preset's error 0.72-0.91x its truth. Close counts measure no rate (one
-# pair's variance swings by ~10 %): counts 4 and 9 measured 1.29 there, set the target at 0.47x
-# the truth, and the next step took the image from 26 to 188 samples.
+# the nearest count at least RATE_SPAN below it. A sampler's first samples can fall faster than
+# its later ones (Mitsuba's stratified one on a demo view at 96 x 72: samples x variance 2.83 at 4
+# samples, 2.01 at 16, 1.82 at 64, 1.85 at 225, so the rate is 1.25 from 4 to 16 and 1.0 above),
+# and the target extrapolates from the largest counts: a rate fitted over every count set the
+# preset's error 0.72-0.91x its truth. Counts closer than RATE_SPAN, extrapolated over more than
+# RATE_RANGE, set a target too low to plan with (``_Progress.plan``): counts 4 and 9 measured 1.29
+# there, put the target at 0.47x the truth, and the next step took the image from 26 to 188 samples.
 RATE_RANGE = 8
 RATE_SPAN = 4
 
@@ -91,12 +91,12 @@ def rate_counts(counts) -> list[int]:
     return [n for n in counts if n >= floor]
 
 
-def convergence_rate(variances: dict[int, float], span: float = RATE_SPAN) -> float | None:
+def convergence_rate(variances: dict[int, float]) -> float | None:
     """α in ``variance ∝ samples^-α`` from one render's mean variance at each sample count: the
     least-squares slope of log variance on log samples over ``rate_counts``, within [1,
-    MAX_RATE]; None until the counts span ``span``."""
+    MAX_RATE]; None with fewer than two counts."""
     counts = rate_counts(n for n, v in variances.items() if v > 0)
-    if len(counts) < 2 or counts[-1] < span * counts[0]:
+    if len(counts) < 2:
         return None
     x = np.log(np.asarray(counts, np.float64))
     y = np.log(np.asarray([variances[n] for n in counts], np.float64))
@@ -310,9 +310,11 @@ def _denoised_halves(raw: _Raw, pair: list[RenderResult] | None, took: list[int]
 
 def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pairs: list[tuple[int, np.ndarray]],
                 paper_samples: int, confidence: float, denoise: Denoise | None = None, continued: bool = False
-                ) -> tuple[float, float | None, list[_Candidate]]:
+                ) -> tuple[float, float | None, list[_Candidate], float]:
     """(the paper preset's estimated error at this view, the convergence rate it took or None when
-    not yet measured, [the raw candidate, the denoised one when the backend denoises]). One
+    not yet measured, [the raw candidate, the denoised one when the backend denoises], the error
+    to plan the next step for: the estimate, or at a rate of 1 while the rate rests on close
+    counts far from the paper's, ``few_counts``). One
     normaliser for all of them, the denoised mean where there is one: the raw mean of a few
     samples is so noisy that ``1 / (norm² + ε)`` of it inflates the target (measured: 2-3x at 2
     samples per render on a noisy image) and the stop comes early. ``pairs``: every pair's
@@ -332,15 +334,29 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
     if den is not None:
         den_map = denoised_rel_mse_map(*den[:4], norm=den_image).mean(axis=-1)
         out.append(_candidate(den_image, den_map, paper_map, confidence, den[4], True))
-    return float(paper_map.mean()), rate, out
+    paper = float(paper_map.mean())
+    counts = [n for n, _ in pairs]
+    if not few_counts(counts, paper_samples, continued):
+        return paper, rate, out, paper
+    plan = float(_paper_map(pairs, norm2, paper_samples, alpha=1.0)[0].mean())
+    return paper, rate, out, max(paper, plan)
+
+
+def few_counts(counts: list[int], paper_samples: int, continued: bool = False) -> bool:
+    """The rate rests on counts closer than ``RATE_SPAN`` and is extrapolated more than
+    ``RATE_RANGE``: a fast start of the sampler can make it high, and the target low. It is
+    safe to stop on (the image then has less error than asked), not to plan with."""
+    top = rate_counts(counts)
+    return (not continued and len(top) > 1 and top[-1] < RATE_SPAN * top[0]
+            and top[-1] * RATE_RANGE < paper_samples)
 
 
 def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_samples: int,
-               continued: bool = False) -> tuple[np.ndarray, float | None]:
+               continued: bool = False, alpha: float | None = None) -> tuple[np.ndarray, float | None]:
     """Per pixel, the paper preset's estimated error: the variance of one render of every pair
     whose count sets the rate (``rate_counts``), scaled from its samples to the paper's at that
-    rate (1 until it is measured), averaged with weights by samples; and the rate.
-    ``continued``: the pairs are the same two renders at each step, so the last is the least
+    rate (1 until it is measured; ``alpha``, when given, instead), averaged with weights by
+    samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the last is the least
     extrapolated, and the rate is the one over the last two counts (a quasi-random sequence's first samples converge faster than its later ones:
     measured on Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""
     if continued:
@@ -349,11 +365,8 @@ def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_sam
     by_count: dict[int, list[float]] = {}
     for n, m in maps:
         by_count.setdefault(n, []).append(float(m.mean()))
-    # Close counts measure a rate only where it extrapolates little (and continued halves, which grow
-    # up to ~4x a step, have their last two counts' rate).
-    near = continued or max(by_count) * RATE_RANGE >= paper_samples
-    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()}, 1.0 if near else RATE_SPAN)
-    alpha = 1.0 if rate is None else rate
+    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()})
+    alpha = alpha if alpha is not None else 1.0 if rate is None else rate
     if continued:
         maps = maps[-1:]
     elif rate is not None:  # the pairs whose counts set the rate: the others converge otherwise
@@ -391,11 +404,11 @@ def _next_step(images: list[_Progress], n: int, target: ErrorTarget) -> tuple[in
     are all new) are chosen only at half the cost of the raw way, their fall being predicted.
     When the core denoises the halves, both ways are made of every sample spent and the next pair
     tops them up towards the nearer. While an image's convergence rate is not measured the next
-    pairs take at least twice the last pair's samples (until the counts span ``RATE_SPAN`` where
-    the rate is extrapolated far). 0 samples: the budget is spent."""
+    pairs take at least twice the last pair's samples: a second count. Steps are planned for
+    ``_Progress.plan``. 0 samples: the budget is spent."""
     spent = max(image.spent for image in images)
     raw_need = max(1, max(image.raw_need() for image in images) - spent)
-    histories, papers = [image.history for image in images], [image.paper for image in images]
+    histories, papers = [image.history for image in images], [image.plan for image in images]
     den_need = max(2 * math.ceil(samples_needed(h, p) / 2) for h, p in zip(histories, papers)) if all(histories) else None
     if den_need is not None and all(image.accumulated() for image in images):
         # Both ways are made of every sample spent: the next pair tops up to the nearer one.
@@ -420,6 +433,7 @@ class _Progress:
     def __init__(self, render: Callable[..., RenderResult], continues: bool = False) -> None:
         self.render, self.raw, self.history, self.phases, self.reported = render, _Raw(), [], {}, []
         self.spent, self.paper, self.rate, self.candidates = 0, 0.0, None, []
+        self.plan = 0.0  # the target the next step is planned for (``_candidates``)
         self.continues = continues  # each half is one render continued (ErrorTarget.continues)
         # (samples per render, the raw renders' squared difference); continued: (each half's samples, the halves')
         self.pairs: list[tuple[int, np.ndarray]] = []
@@ -449,7 +463,7 @@ class _Progress:
         # of its own (measured on Cycles: samples 2-18 denoised had 1.4x the error of a 16-sample
         # render): no last-pair way.
         pair = None if self.continues else pair
-        self.paper, self.rate, self.candidates = _candidates(self.raw, pair, took, self.pairs, target.paper_samples,
+        self.paper, self.rate, self.candidates, self.plan = _candidates(self.raw, pair, took, self.pairs, target.paper_samples,
                                                              target.confidence, denoise, self.continues)
         # The denoised way's history: its pairs alone, or every step when it denoises all samples spent.
         if len(self.candidates) > 1 and (den_step or self.accumulated()):
@@ -467,10 +481,10 @@ class _Progress:
         """The samples at which the raw mean's bound reaches the target: its error falls as
         1 / samples over independent renders, at the measured rate over continued halves."""
         upper = self.candidates[0].upper
-        if upper <= self.paper or self.paper <= 0:
+        if upper <= self.plan or self.plan <= 0:
             return self.spent
         alpha = self.rate if self.continues and self.rate is not None else 1.0
-        return math.ceil(self.spent * (upper / self.paper) ** (1 / alpha))
+        return math.ceil(self.spent * (upper / self.plan) ** (1 / alpha))
 
     def over(self, kind: int) -> float:
         """The candidate's upper bound over the target (an image without noise, target 0, is at it
