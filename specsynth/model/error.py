@@ -314,8 +314,8 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
     """(the paper preset's estimated error at this view, the convergence rate it took or None when
     not yet measured, [the raw candidate, the denoised one when the backend denoises], the error
     to plan the next step for: the estimate, or at a rate of 1 while the rate rests on close
-    counts far from the paper's, ``few_counts``). One
-    normaliser for all of them, the denoised mean where there is one: the raw mean of a few
+    counts far from the paper's, ``few_counts``). One normaliser for all of them, the denoised
+    mean where there is one: the raw mean of a few
     samples is so noisy that ``1 / (norm² + ε)`` of it inflates the target (measured: 2-3x at 2
     samples per render on a noisy image) and the stop comes early. ``pairs``: every pair's
     samples per render and the square of its two raw renders' difference (``continued``: the
@@ -356,9 +356,10 @@ def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_sam
     """Per pixel, the paper preset's estimated error: the variance of one render of every pair
     whose count sets the rate (``rate_counts``), scaled from its samples to the paper's at that
     rate (1 until it is measured; ``alpha``, when given, instead), averaged with weights by
-    samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the last is the least
-    extrapolated, and the rate is the one over the last two counts (a quasi-random sequence's first samples converge faster than its later ones:
-    measured on Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""
+    samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the
+    last is the least extrapolated, and the rate is the one over the last two counts (a
+    quasi-random sequence's first samples converge faster than its later ones: measured on
+    Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""
     if continued:
         pairs = pairs[-2:]
     maps = [(n, (sq / 2 / norm2).mean(axis=-1)) for n, sq in pairs]

@@ -657,8 +657,7 @@ def test_two_rooms_of_very_different_noise_land_on_the_paper_presets_error(tmp_p
     from specsynth.spec.yamlio import load_spec
 
     errors = {}
-    for scene in ("{name: room}", "{name: office_desk, stages: [focus]}"):
-        name = scene.split(",")[0].split()[-1].strip("}")
+    for name, scene in (("room", "{name: room}"), ("office_desk", "{name: office_desk, stages: [focus]}")):
         f = tmp_path / f"{name}.yaml"
         f.write_text(TWO_ROOMS.replace("SCENE", scene))
         rows, _ = run_bench(compile_spec(load_spec(f)), tmp_path / name, n_views=1, ref_factor=2, scale=0.1,
