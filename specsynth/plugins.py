@@ -142,22 +142,25 @@ class BackendPlugin:
         """``quality.control: error``: the paper preset's samples (whose error is the target), the
         samples per render of the first pair (the spec's own ``options``' samples, else half the
         level's calibrated samples: the first pair costs what one calibrated render does, each as
-        the renderer takes it) and the image's budget. ``quality.max_samples`` is a bound, never
+        the renderer takes it) and the image's budget: ``quality.max_samples``, else ``BUDGET_FACTOR``
+        times the preset's samples, spent past those only by an image not at its target within
+        them (``ErrorTarget.soft_samples``). ``quality.max_samples`` is a bound, never
         raised: the first pair is made smaller to fit it, and a budget no pair of the renderer's
         counts fits is a ValueError (``validate`` reports it)."""
-        from .model.error import ErrorTarget, per_render, taken
+        from .model.error import BUDGET_FACTOR, ErrorTarget, per_render, taken
 
         paper = quality.resolved().samples
         cal = self.calibrated.get(quality.paper_level, {}) if quality.calibrated else {}
         counts = partial(self.sample_counts, options) if self.sample_counts is not None else None
         want = options.samples or max(1, int(cal.get("samples", 2)) // 2)
-        budget = quality.max_samples or max(paper, 2 * taken(counts, want))
+        budget = quality.max_samples or max(BUDGET_FACTOR * paper, 2 * taken(counts, want))
+        soft = None if quality.max_samples else paper  # the default budget: the preset's samples first
         start = per_render(counts, want, budget)
         if start < 1:
             raise ValueError(f"quality.max_samples {budget} fits no pair of renders: backend {self.name!r} renders "
                              f"at least {taken(counts, 1)} samples per pixel per render")
         return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=budget, counts=counts,
-                           continues=self.capabilities.continues_samples)
+                           continues=self.capabilities.continues_samples, soft_samples=soft)
 
     def load_class(self) -> type:
         mod, _, attr = self.backend.partition(":")

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import example, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from specsynth.model.colour import linear_to_srgb8
@@ -433,6 +433,30 @@ def test_continued_halves_end_within_the_budget_as_two_renders_and_are_determini
     assert runs[0].result.linear.tobytes() == runs[1].result.linear.tobytes() and runs[0].stats() == runs[1].stats()
 
 
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), sigma=st.floats(0.01, 10.0), start=st.integers(1, 8), paper=st.integers(4, 300),
+       factor=st.integers(2, 4), denoised=st.sampled_from([False, "halves"]))
+def test_a_budget_past_the_papers_samples_changes_only_the_images_not_at_their_target_within_them(
+        seed, sigma, start, paper, factor, denoised):
+    """Under a budget of several times the paper's samples whose first stage is the paper's samples
+    (the default budget), an image takes the steps it takes under a budget of the paper's samples;
+    only one that spent those without reaching its target goes on, within the larger budget."""
+    assume(2 * start <= paper)
+    mu = scene(seed)[::6, ::6]
+    runs = []
+    for budget in (paper, factor * paper):
+        r = (SmallDenoiser if denoised else NoisyRenderer)(mu, sigma, seed)
+        target = ErrorTarget(paper, start, budget, soft_samples=paper if budget > paper else None)
+        done = render_to_target(r, target, linear_to_srgb8, box3 if denoised else None)
+        runs.append((done, list(r.calls)))
+    (small, calls), (large, more) = runs
+    assert large.samples <= factor * paper and more[:len(calls)] == calls
+    if small.samples + 2 <= paper:  # it stopped with a pair left: at its target
+        assert more == calls and large.stats() == small.stats()
+    if len(more) > len(calls):
+        assert small.samples + 2 > paper < sum(more)
+
+
 def squares(n: int) -> int:
     """A stratified sampler's counts: the next square."""
     return math.isqrt(n - 1) ** 2 + 2 * math.isqrt(n - 1) + 1 if n > 1 else 1
@@ -537,7 +561,8 @@ def test_backend_samples_start_an_error_target_and_every_render_takes_its_own():
                            calibrated={"high": {"samples": 4, "denoise": True}})
     q = Quality(level="high", control="error")
     spec = BackendOptions(name="x", samples=64)
-    assert plugin.error_target(spec, q) == ErrorTarget(paper_samples=225, start_samples=64, max_samples=225)
+    assert plugin.error_target(spec, q) == ErrorTarget(paper_samples=225, start_samples=64, max_samples=450,
+                                                        soft_samples=225)
     filled = plugin.options_for(spec, q)
     assert (filled.samples, filled.denoise) == (None, True)
     assert plugin.options_for(BackendOptions(name="x"), q).samples is None
@@ -606,18 +631,19 @@ def test_the_images_of_a_view_are_rendered_to_their_targets_as_one(seed, sigmas,
 def test_max_samples_is_a_bound_that_the_first_pair_is_made_to_fit():
     """quality.max_samples is never raised: backend.samples 64 under a budget of 100 made the
     budget 128; the first pair now shrinks to fit it, to a count the renderer takes. Without
-    max_samples the budget is the paper's samples, or the first pair as the renderer takes it."""
+    max_samples the budget is twice the paper's samples, or the first pair as the renderer takes it."""
     from specsynth.plugins import BackendPlugin
     from specsynth.spec.models import BackendOptions, Quality
 
     plain = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
     bounded = Quality(level="high", control="error", max_samples=100)
-    assert plain.error_target(BackendOptions(name="x", samples=64), bounded) == ErrorTarget(225, 50, 100)
+    assert plain.error_target(BackendOptions(name="x", samples=64), bounded) == ErrorTarget(225, 50, 100)  # no soft stage
     rounding = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sample_counts=lambda o, n: squares(n))
     t = rounding.error_target(BackendOptions(name="x", samples=64), bounded)
     assert (t.start_samples, t.max_samples, t.taken(50)) == (49, 100, 64)
     free = Quality(level="high", control="error")
-    assert rounding.error_target(BackendOptions(name="x", samples=150), free).max_samples == 2 * 169
+    assert rounding.error_target(BackendOptions(name="x", samples=150), free).max_samples == 2 * 225
+    assert rounding.error_target(BackendOptions(name="x", samples=250), free).max_samples == 2 * 256
     assert rounding.error_target(BackendOptions(name="x", samples=8), free).start_samples == 9
     fourfold = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sample_counts=lambda o, n: fours(n))
     with pytest.raises(ValueError, match="fits no pair of renders.*at least 4 samples"):

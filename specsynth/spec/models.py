@@ -553,7 +553,7 @@ class Quality(Strict):
         "paper preset's at that image (docs/quality.md#error-targets); each image records its samples and error.")
     max_samples: int | None = Field(
         None, ge=2, le=65536, description="control: error: the most samples per pixel one image may take "
-        "(all its renders together); default the paper preset's samples.")
+        "(all its renders together); default twice the paper preset's samples.")
 
     @property
     def paper_level(self) -> str:
