@@ -593,7 +593,7 @@ def probe_overrides(edits, arrangements: int, exposure: float) -> list[str]:
     ``exposure`` stops, written losslessly."""
     return [f"{e.field}={json.dumps(e.value)}" for e in edits] + [
         f"arrangements.count={arrangements}", "cameras.per_arrangement=4", f"sensor.exposure=[{exposure}, {exposure}]",
-        "sensor.contrast=1", "sensor.saturation=1", "sensor.sharpening=0",
+        "sensor.contrast=1", "sensor.saturation=1", "sensor.sharpening=0", "sensor.vignetting=0",
         "sensor.blur=null", "sensor.shot_noise=0", "sensor.read_noise=0", "outputs.image_format=png"]
 
 

@@ -32,6 +32,7 @@ from specsynth.views.cameras import camera_pose
 
 LMO_IDS = [1, 5, 6, 8, 9, 10, 11, 12]
 DATA = Path(__file__).parent / "data"
+VIGNETTING_REAL = 0.687  # docs/compare.md: the real LM-O photographs' corners at 0.69 of their centres' level
 
 
 @pytest.fixture(scope="session")
@@ -180,6 +181,7 @@ def test_real_lmo_statistics_are_what_the_docs_state(lmo_measured):
     med = {k: float(np.nanmedian(v)) for k, v in r.images.items()}
     assert med["contrast"] == pytest.approx(0.767, abs=0.005)
     assert med["edge_density"] == pytest.approx(0.237, abs=0.005)
+    assert med["vignetting"] == pytest.approx(VIGNETTING_REAL, abs=0.005)
     assert med["instances"] == 8
     assert np.nanmedian(r.instances["distance"]) == pytest.approx(0.988, abs=0.005)
 
@@ -240,6 +242,32 @@ def test_halo_is_not_measured_without_strong_edges():
     faint = np.full((40, 40), 0.5, np.float32)
     faint[:, 20:] += 0.1  # a step below HALO_MIN_STEP
     assert np.isnan(imagestats.halo(faint))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.05, 0.9), st.floats(0.0, 0.9), st.integers(24, 120), st.integers(24, 160))
+def test_vignetting_reads_the_corners_level_over_the_centres(level, amount, h, w):
+    """A flat field reads 1; through a lens that keeps 1 - amount of the light in its corners, the
+    statistic (in encoded luma, the corners' region starting at 0.8 of the half-diagonal) lies
+    between the encoded corner gain and 1, and falls as the amount grows."""
+    from specsynth.model.colour import linear_to_srgb
+    from specsynth.views.sensor import vignette
+
+    def read(a: float) -> float:
+        field = level * vignette(h, w, a)
+        return imagestats.vignetting(linear_to_srgb(field.astype(np.float32)).astype(np.float32))
+
+    assert read(0.0) == pytest.approx(1.0, abs=1e-6)
+    corner = float(linear_to_srgb(np.float32(level * (1 - amount))) / linear_to_srgb(np.float32(level)))
+    assert corner - 1e-6 <= read(amount) <= 1.0 + 1e-6
+    if amount > 0.05:
+        assert read(amount) < read(amount / 2) < 1.0
+
+
+def test_vignetting_is_not_measured_on_a_black_centre():
+    dark = np.zeros((40, 60), np.float32)
+    assert np.isnan(imagestats.vignetting(dark))
+    assert np.isnan(imagestats.vignetting(np.ones((3, 3), np.float32)))
 
 
 def test_flat_grey_has_no_colour_no_edges_no_texture():

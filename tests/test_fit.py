@@ -98,13 +98,25 @@ def test_a_known_cameras_sharpening_is_fitted_back_with_its_blur():
     assert 0.6 < (blur_lo + blur_hi) / 2 < 0.8
 
 
+def test_a_known_lenss_vignetting_is_fitted_back():
+    """Dead-leaves charts through a lens that keeps 60 % of the light in its corners are the 'real'
+    side, the charts themselves the probe: the fit finds that lens again (within 0.05)."""
+    from specsynth.views.sensor import process, vignette
+
+    charts = [_dead_leaves(k) for k in range(6)]
+    made = [process(c * vignette(*c.shape[:2], 0.4)[..., None]) for c in charts]
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), [process(c) for c in charts], "test", None, seed=1)[0]}
+    assert edits["sensor.vignetting"].value == pytest.approx(0.4, abs=0.05)
+    assert edits["sensor.vignetting"].comment.startswith("fit: real corners")
+
+
 def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise(real_photos):
     edits = {e.field: e for e in fit.sensor_edits(_stats_of(real_photos), real_photos, "test", None)[0]}
     assert edits["sensor.blur"].value is None and edits["sensor.shot_noise"].value == 0.0
     lo, hi = edits["sensor.exposure"].value
     assert abs((lo + hi) / 2) < 0.1
     assert edits["sensor.contrast"].value < 1.05 and abs(edits["sensor.saturation"].value - 1.0) < 0.05
-    assert edits["sensor.sharpening"].value == 0.0
+    assert edits["sensor.sharpening"].value == 0.0 and edits["sensor.vignetting"].value == 0.0
     assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
 
 
@@ -143,7 +155,7 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
     fitted = load_spec(out, []).spec.model_dump(mode="json")
     original = load_spec(spec, []).spec.model_dump(mode="json")
     edited = {"cameras": {"distance", "elevation", "elevation_sampling", "inplane"}, "visibility": {"threshold"},
-              "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation", "sharpening"},
+              "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation", "sharpening", "vignetting"},
               "outputs": {"image_format"}}
     for section, value in original.items():
         keep = {k: v for k, v in value.items() if k not in edited.get(section, ())} if isinstance(value, dict) else value
@@ -284,7 +296,7 @@ def test_the_probe_is_rendered_with_a_neutral_sensor_whatever_the_spec_sets():
     assert spec.sensor.sharpening > 0 and spec.sensor.blur  # the shipped spec is a fitted one
     sensor = load_spec(ROOT / "specs" / "lmo_pbr_h.yaml", probe_overrides([], 3, -1.0)).spec.sensor
     assert (sensor.exposure, sensor.contrast, sensor.saturation, sensor.sharpening, sensor.blur,
-            sensor.shot_noise, sensor.read_noise) == ((-1.0, -1.0), 1.0, 1.0, 0.0, None, 0.0, 0.0)
+            sensor.shot_noise, sensor.read_noise, sensor.vignetting) == ((-1.0, -1.0), 1.0, 1.0, 0.0, None, 0.0, 0.0, 0.0)
     assert sensor.auto_exposure and sensor.auto_white_balance  # as the spec asks: the real camera's
 
 

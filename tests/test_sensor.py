@@ -298,3 +298,37 @@ def test_sharpening_is_part_of_the_camera_processing_and_of_the_sensor():
     rgb8 = linear_to_srgb8(step)
     out = sensor_rgb(step, rgb8, Sensor(sharpening=1.0), np.random.default_rng(0))
     np.testing.assert_array_equal(out, sharp.astype(np.uint8))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.0, 0.95), st.integers(2, 60), st.integers(2, 80))
+def test_vignetting_keeps_the_centre_and_leaves_the_corners_their_share(amount, h, w):
+    """The corners keep 1 - amount of the light, the gain falls monotonically with the distance from
+    the centre and is the same at mirrored pixels; 0 is no vignetting."""
+    from specsynth.views.sensor import vignette
+
+    g = vignette(h, w, amount)
+    assert g.shape == (h, w) and np.all(g <= 1.0) and np.all(g > 0.0)
+    for corner in (g[0, 0], g[0, -1], g[-1, 0], g[-1, -1]):
+        assert corner == pytest.approx(1.0 - amount, rel=1e-9)
+    np.testing.assert_allclose(g, g[::-1, ::-1], rtol=1e-12)
+    cy, cx = (h - 1) / 2, (w - 1) / 2
+    rho = np.hypot(*np.mgrid[0:h, 0:w] - np.array([cy, cx])[:, None, None]).ravel()
+    order = np.argsort(rho, kind="stable")
+    assert np.all(np.diff(g.ravel()[order]) <= 1e-12)
+    np.testing.assert_array_equal(vignette(h, w, 0.0), np.ones((h, w)))
+
+
+def test_vignetting_is_part_of_the_sensor_after_exposure():
+    """sensor.vignetting darkens the corners of the image after metering: a grey field metered by
+    auto exposure comes out as without vignetting at the centre, darker towards the corners."""
+    from specsynth.views.sensor import vignette
+
+    grey = np.full((48, 64, 3), 0.18, np.float32)
+    rgb8 = linear_to_srgb8(grey)
+    plain = sensor_rgb(grey, rgb8, Sensor(auto_exposure=True), np.random.default_rng(0)).astype(int)
+    dark = sensor_rgb(grey, rgb8, Sensor(auto_exposure=True, vignetting=0.4), np.random.default_rng(0)).astype(int)
+    assert Sensor(vignetting=0.1).affects_rgb
+    assert abs(dark[24, 32] - plain[24, 32]).max() <= 1
+    np.testing.assert_array_equal(dark[0, 0], linear_to_srgb8(np.full(3, 0.18 * 0.6, np.float32)))
+    np.testing.assert_array_equal(dark, linear_to_srgb8((grey * vignette(48, 64, 0.4)[..., None]).astype(np.float32)))

@@ -26,6 +26,7 @@ STATISTICS: dict[str, tuple[str, str, str, str]] = {
     "noise": ("appearance", "images", "levels", "noise std (8-bit levels)"),
     "edge_density": ("appearance", "images", "", "clutter: share of edge pixels"),
     "texture_density": ("appearance", "images", "", "clutter: share of textured tiles"),
+    "vignetting": ("appearance", "images", "", "dark corners: the corners' bright level over the centre's"),
     "obj_brightness": ("objects", "objects", "", "object: mean luma inside its visible mask"),
     "obj_lightness": ("objects", "objects", "L*", "object: lightness of its mean colour"),
     "obj_a": ("objects", "objects", "a*", "object: green-red of its mean colour"),

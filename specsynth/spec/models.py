@@ -695,6 +695,11 @@ class Sensor(Strict):
                               "unsharp mask of this amount on the encoded image's luma (a Gaussian of 1 pixel), "
                               "which draws dark and bright halos along edges as real cameras' image processors do "
                               "(0: none). `specsynth fit` sets it from real photographs' halos.")
+    vignetting: float = Field(0.0, ge=0.0, le=0.95, description="Light the lens loses towards the image corners: "
+                              "the corners keep 1 - vignetting of the centre's (0: none), falling off as a lens's "
+                              "cos^4 law from the image centre. Applied to the linear image after exposure (a camera "
+                              "meters its centre), before blur and noise. `specsynth fit` sets it from real "
+                              "photographs' dark corners.")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")
     depth: DepthSensor | None = Field(None, description="Also write a noisy depth map like an RGB-D sensor's.")
@@ -710,7 +715,8 @@ class Sensor(Strict):
     def affects_rgb(self) -> bool:
         return bool(self.shot_noise or self.read_noise or self.exposure != (0.0, 0.0) or self.white_balance
                     or self.auto_white_balance or self.auto_exposure or (self.blur and self.blur[1] > 0)
-                    or self.saturation != 1.0 or self.contrast != 1.0 or self.sharpening > 0)
+                    or self.saturation != 1.0 or self.contrast != 1.0 or self.sharpening > 0
+                    or self.vignetting > 0)
 
 
 # --------------------------------------------------------------------------- outputs

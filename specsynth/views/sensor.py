@@ -2,7 +2,8 @@
 
 RGB: auto white balance divides out the colour of the light in view (the render over the view's
 albedo: what a camera's AWB estimates, here known exactly) and auto exposure meters the image to
-middle grey; then exposure and white-balance errors scale the linear radiance, the optics blur it,
+middle grey; then exposure and white-balance errors scale the linear radiance, the lens darkens
+its corners (vignetting: after metering, as a camera meters its centre) and blurs it,
 then shot noise (std proportional to the square root of the signal) and read noise (constant std) are added, all
 in linear units, as in a real camera's raw pipeline; the camera's processing then sets the colour
 saturation, encodes sRGB, applies its tone curve and sharpens. Depth: a structured-
@@ -71,6 +72,8 @@ def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng:
         x = x * exposure_gain(x)
     gains = np.asarray(kelvin_rgb(6500.0)) / np.asarray(kelvin_rgb(kelvin))
     x = x * (2.0 ** stops) * (gains / gains.mean())
+    if sensor.vignetting > 0:  # after metering: a camera meters its centre, the corners stay dark
+        x = x * vignette(x.shape[0], x.shape[1], sensor.vignetting)[..., None]
     noise = rng.standard_normal(x.shape)
     if sensor.blur:  # drawn after the noise: a spec without blur keeps every earlier draw
         x = blur(x, float(rng.uniform(*sensor.blur)))
@@ -119,6 +122,20 @@ def process(linear: np.ndarray, saturation: float = 1.0, contrast: float = 1.0, 
         return linear_to_srgb8(x.astype(np.float32))
     v = tone_curve(linear_to_srgb(x.astype(np.float32)).astype(np.float64), contrast)
     return np.round(sharpen(v, sharpening) * 255.0).astype(np.uint8)
+
+
+def vignette(height: int, width: int, amount: float) -> np.ndarray:
+    """A lens's fall-off of light towards the image corners, HxW gains: (1 + k rho^2)^-2, the cos^4
+    law of a pinhole whose corner ray makes an angle of atan(sqrt(k)) with its axis, rho a pixel
+    centre's distance from the image centre over the corners' (1 at the corner pixels), and k set
+    so that the corners keep ``1 - amount`` of the light (0: none)."""
+    if amount <= 0:
+        return np.ones((height, width))
+    k = (1.0 - amount) ** -0.5 - 1.0
+    cy, cx = (height - 1) / 2.0, (width - 1) / 2.0
+    yy, xx = np.mgrid[0:height, 0:width]
+    rho2 = ((yy - cy) ** 2 + (xx - cx) ** 2) / max(cy * cy + cx * cx, 1e-12)
+    return (1.0 + k * rho2) ** -2
 
 
 def blur(x: np.ndarray, sigma: float) -> np.ndarray:
