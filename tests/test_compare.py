@@ -267,7 +267,8 @@ def test_vignetting_reads_the_corners_level_over_the_centres(level, amount, h, w
 def test_vignetting_is_not_measured_on_a_black_centre():
     dark = np.zeros((40, 60), np.float32)
     assert np.isnan(imagestats.vignetting(dark))
-    assert np.isnan(imagestats.vignetting(np.ones((3, 3), np.float32)))
+    assert np.isnan(imagestats.vignetting(np.full((3, 3), 0.5, np.float32)))  # too small to have corners
+    assert np.isnan(imagestats.vignetting(np.ones((40, 60), np.float32)))  # a clipped centre
 
 
 def test_flat_grey_has_no_colour_no_edges_no_texture():

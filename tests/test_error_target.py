@@ -433,6 +433,18 @@ def test_continued_halves_end_within_the_budget_as_two_renders_and_are_determini
     assert runs[0].result.linear.tobytes() == runs[1].result.linear.tobytes() and runs[0].stats() == runs[1].stats()
 
 
+def test_the_next_pair_keeps_within_the_soft_stage_while_a_pair_fits_there():
+    """With soft_samples, a step is cut to what is left of them while a pair fits there, then takes
+    what it asks within the budget; without, the budget alone bounds it."""
+    staged = ErrorTarget(225, 2, 450, soft_samples=225)
+    assert staged.next_pair(64, 100) == 62  # 125 left of the first stage: a pair of 62
+    assert staged.next_pair(64, 224) == 64  # no pair fits in the first stage: the second
+    assert staged.next_pair(64, 400) == 25 and staged.next_pair(64, 449) == 0
+    assert ErrorTarget(225, 2, 450).next_pair(64, 100) == 64
+    rounding = ErrorTarget(225, 1, 450, counts=squares, soft_samples=225)
+    assert rounding.next_pair(64, 100) == 49 and rounding.next_pair(64, 224) == 64
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31), sigma=st.floats(0.01, 10.0), start=st.integers(1, 8), paper=st.integers(4, 300),
        factor=st.integers(2, 4), denoised=st.sampled_from([False, "halves"]))

@@ -117,6 +117,7 @@ def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise
     assert abs((lo + hi) / 2) < 0.1
     assert edits["sensor.contrast"].value < 1.05 and abs(edits["sensor.saturation"].value - 1.0) < 0.05
     assert edits["sensor.sharpening"].value == 0.0 and edits["sensor.vignetting"].value == 0.0
+    assert "unvignetted" in edits["sensor.vignetting"].comment  # searched, not skipped for clipping
     assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
 
 

@@ -697,8 +697,8 @@ class Sensor(Strict):
                               "(0: none). `specsynth fit` sets it from real photographs' halos.")
     vignetting: float = Field(0.0, ge=0.0, le=0.95, description="Light the lens loses towards the image corners: "
                               "the corners keep 1 - vignetting of the centre's (0: none), falling off as a lens's "
-                              "cos^4 law from the image centre. Applied to the linear image after exposure (a camera "
-                              "meters its centre), before blur and noise. `specsynth fit` sets it from real "
+                              "cos^4 law from the image centre. Applied to the linear image after exposure (the exposure "
+                              "`specsynth fit` finds is for the vignetted image), before blur and noise. `specsynth fit` sets it from real "
                               "photographs' dark corners.")
     jpeg_quality: IntRange(1) | None = Field(None, description="JPEG quality drawn per image in this range "
                                              "(outputs.image_format jpg); else outputs.jpeg_quality.")

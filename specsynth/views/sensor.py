@@ -3,7 +3,7 @@
 RGB: auto white balance divides out the colour of the light in view (the render over the view's
 albedo: what a camera's AWB estimates, here known exactly) and auto exposure meters the image to
 middle grey; then exposure and white-balance errors scale the linear radiance, the lens darkens
-its corners (vignetting: after metering, as a camera meters its centre) and blurs it,
+its corners (vignetting, after the metering: the exposure a fit finds is for the vignetted image) and blurs it,
 then shot noise (std proportional to the square root of the signal) and read noise (constant std) are added, all
 in linear units, as in a real camera's raw pipeline; the camera's processing then sets the colour
 saturation, encodes sRGB, applies its tone curve and sharpens. Depth: a structured-
@@ -72,7 +72,7 @@ def sensor_rgb(linear: np.ndarray | None, rgb8: np.ndarray, sensor: Sensor, rng:
         x = x * exposure_gain(x)
     gains = np.asarray(kelvin_rgb(6500.0)) / np.asarray(kelvin_rgb(kelvin))
     x = x * (2.0 ** stops) * (gains / gains.mean())
-    if sensor.vignetting > 0:  # after metering: a camera meters its centre, the corners stay dark
+    if sensor.vignetting > 0:  # after metering, as `specsynth fit` develops its probe: the fitted exposure holds
         x = x * vignette(x.shape[0], x.shape[1], sensor.vignetting)[..., None]
     noise = rng.standard_normal(x.shape)
     if sensor.blur:  # drawn after the noise: a spec without blur keeps every earlier draw

@@ -338,18 +338,18 @@ def test_new_arrangement_reuses_kernels(tmp_path):
 
     from specsynth_mitsuba.backend import MitsubaBackend
 
-    if not dr.is_jit_v(mi.Float):
-        pytest.skip("scalar variant has no kernels")
-    backend = MitsubaBackend({"variant": "auto"}, threads=2)
     floor = MeshInstance("floor", _quad(tmp_path), "q", as_tuple(np.diag([4.0, 4.0, 1.0, 1.0])), MaterialIR(**DIFFUSE))
     ball = MeshInstance("ball", _sphere(tmp_path, 0.3, 2), "s", _pose((0.2, 0, 0.3)), MaterialIR(base_color=(0.8, 0.2, 0.2)))
     light = LightIR(kind="area", pose=_pose((0, 0, 2)), power=50.0)
     cam = _camera((0, -2, 1), (0, 0, 0.2))
-    backend.load(RenderScene(meshes=(floor, ball), lights=(light,)))
-    backend.render(cam, _spp(2), seed=1)
     moved = dataclasses.replace(ball, pose=_pose((-0.1, 0.1, 0.3)), material=MaterialIR(base_color=(0.1, 0.5, 0.9)))
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    backend = MitsubaBackend({"variant": "auto"}, threads=2)  # (sets the variant)
     try:
+        if not dr.is_jit_v(mi.Float):
+            pytest.skip("scalar variant has no kernels")
+        backend.load(RenderScene(meshes=(floor, ball), lights=(light,)))
+        backend.render(cam, _spp(2), seed=1)
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
         dr.kernel_history()
         for _ in range(2):
             backend.load(RenderScene(meshes=(floor, moved), lights=(light,)))
