@@ -287,6 +287,61 @@ def test_faces_whose_corners_point_elsewhere_are_drawn_flat(seed, flipped):
     assert (out.faces[agreed] < 16).all()
 
 
+def _uv_grid(rng):
+    """A 4 x 4 grid of vertices in 18 triangles with texture coordinates within a few repeats."""
+    xs, ys = np.meshgrid(np.arange(4.0), np.arange(4.0))
+    v = np.stack([xs.ravel(), ys.ravel(), np.zeros(16)], axis=1).astype(np.float32)
+    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 5, r * 4 + c + 4) for r in range(3) for c in range(3)]
+    f = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    return v, f, (rng.random((16, 2)) * 8 - 4).astype(np.float32)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31), st.floats(0.0, 0.6))
+def test_broken_texture_coordinates_take_their_neighbours(seed, broken):
+    """A texture coordinate that is not finite or lies beyond UV_LIMIT repeats (a Sweet Home 3D
+    table had four at u = 3.4e9, which Mitsuba drew as 1e14-bright fireflies) is replaced, u and v
+    each on its own, by the mean of the valid ones it shares faces with; valid ones are kept bit
+    for bit, the input is left as it was, and a mesh without broken ones is returned as it is."""
+    from specsynth.assets.meshio import UV_LIMIT, MeshData
+
+    rng = np.random.default_rng(seed)
+    v, f, uv = _uv_grid(rng)
+    bad = rng.random((16, 2)) < broken
+    uv[bad] = rng.choice([np.nan, np.inf, -np.inf, 3.4e9, -2 * UV_LIMIT], int(bad.sum()))
+    before = uv.copy()
+    mesh = MeshData(vertices=v, faces=f, uv=uv)
+    out = mesh.with_usable_uv()
+    assert np.array_equal(uv, before, equal_nan=True)
+    if not bad.any():
+        assert out is mesh
+        return
+    assert np.isfinite(out.uv).all() and (np.abs(out.uv) <= 4).all()
+    assert np.array_equal(out.uv[~bad], uv[~bad])
+    for i, c in zip(*np.nonzero(bad)):
+        # the valid neighbours of the first pass, each counted once per face it shares with the vertex
+        weights = {j: sum(1 for face in f if i in face and j in face) for face in f if i in face for j in face
+                   if j != i and not bad[j, c]}
+        if weights:
+            want = sum(w * float(uv[j, c]) for j, w in weights.items()) / sum(weights.values())
+            assert out.uv[i, c] == pytest.approx(want, abs=1e-5)
+
+
+def test_a_face_of_broken_texture_coordinates_takes_its_neighbours():
+    """Every corner of a face broken: each takes its valid neighbours' mean, then the rest take
+    theirs, so the face keeps an area in texture space instead of collapsing to (0, 0)."""
+    from specsynth.assets.meshio import MeshData
+
+    v, f, uv = _uv_grid(np.random.default_rng(3))
+    uv[:, 0] = np.arange(16) % 4  # u runs 0..3 along each row: the grid's own layout
+    uv[[0, 1, 4, 5], 0] = 3.4e9  # the corner quad's four corners
+    out = MeshData(vertices=v, faces=f, uv=uv).with_usable_uv().uv
+    assert np.isfinite(out).all() and (out[[1, 4, 5], 0] > 0).all()
+    # corner 0 reaches no valid u in the first pass: it takes its faces' (0, 1, 5) and (0, 5, 4) repaired ones
+    assert out[0, 0] == pytest.approx((out[1, 0] + 2 * out[5, 0] + out[4, 0]) / 4, abs=1e-5)
+    assert np.array_equal(out[:, 1], uv[:, 1])  # v was valid everywhere and is kept
+
+
 def _box(lo, hi):
     """A closed box, faces wound outwards, as (vertices, faces)."""
     x0, y0, z0 = lo

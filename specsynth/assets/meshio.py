@@ -22,6 +22,10 @@ class MeshFormatError(ValueError):
 # A face whose vertex normal is more than ~75 degrees off its own normal is drawn flat: smooth
 # shading across a real crease stays well inside (a cube corner's shared normal is 55 degrees off).
 DISAGREE = 0.25
+# A texture coordinate beyond this many repeats of its image is broken, not tiling: of the 12,012
+# meshes the library's rooms had normalised, all but one stay within 100, and that one (a Sweet
+# Home 3D table) has four corners at u = 3.4e9, which made Mitsuba trace 1e14-bright fireflies.
+UV_LIMIT = 1e4
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +88,34 @@ class MeshData:
         if not split.any():
             return replace(self, faces=f.astype(self.faces.dtype), normals=normals)
         return _flat_faces(replace(self, faces=f.astype(self.faces.dtype), normals=normals), split, unit[split])
+
+    def with_usable_uv(self) -> "MeshData":
+        """The mesh with every texture coordinate that is not finite or lies beyond ``UV_LIMIT``
+        replaced by the mean of the valid ones at the other corners of its faces, each of u and v
+        on its own, and repeated outwards (a face of broken corners takes its neighbours'); 0 where
+        no valid one is reached. In float32 such a coordinate has no fraction left to place a
+        texel, and a renderer that derives a surface frame from the coordinates' gradients
+        divides by nearly nothing."""
+        if self.uv is None:
+            return self
+        uv = np.asarray(self.uv, np.float64)
+        bad = ~(np.isfinite(uv) & (np.abs(uv) <= UV_LIMIT))
+        if not bad.any():
+            return self
+        f = np.asarray(self.faces)
+        fixed = np.where(bad, 0.0, uv)
+        while bad.any():
+            total, count = np.zeros_like(uv), np.zeros_like(uv)
+            for k in range(3):
+                for j in (1, 2):
+                    np.add.at(total, f[:, k], np.where(bad, 0.0, fixed)[f[:, (k + j) % 3]])
+                    np.add.at(count, f[:, k], ~bad[f[:, (k + j) % 3]])
+            reached = bad & (count > 0)
+            if not reached.any():
+                break
+            fixed = np.where(reached, total / np.maximum(count, 1), fixed)
+            bad = bad & ~reached
+        return replace(self, uv=fixed.astype(np.float32))
 
     @property
     def bounds(self) -> np.ndarray:

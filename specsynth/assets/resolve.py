@@ -55,7 +55,8 @@ from .repair import drop_overlapping
 # 3 (4): faces wound the way their normals point; zero-length or non-finite normals replaced by their faces'.
 # 5 (6): faces whose corner normals point away from them drawn flat; faces overlapping a larger
 # one in its plane dropped (assets/repair.py).
-CONVERSION_VERSION = 6
+# 7: broken texture coordinates replaced by their neighbours' (meshio.UV_LIMIT).
+CONVERSION_VERSION = 7
 
 # Built-in models are re-centred on their bounding box, as BOP expects of a model (pybullet_data's
 # origins are wherever the modeller left them: 100 mm off for the mug). User models stay as given.
@@ -712,7 +713,7 @@ def check_texture(path: Path, what: str) -> None:
 def store_mesh(mesh: MeshData, key: str, cache: Path, comments: tuple[str, ...] = ()) -> tuple[Path, str]:
     """Write the normalised PLY as ``<cache>/assets/<key>.ply`` (once) -> (path, mesh_key)."""
     path = Path(cache) / "assets" / f"{key}.ply"
-    data = mesh_bytes(drop_overlapping(mesh.with_usable_normals()), comments)
+    data = mesh_bytes(drop_overlapping(mesh.with_usable_normals().with_usable_uv()), comments)
     if not (path.is_file() and path.stat().st_size == len(data)):
         atomic_write_bytes(path, data)
     return path, hashlib.sha256(data).hexdigest()
