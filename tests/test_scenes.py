@@ -113,6 +113,16 @@ def _write_scene(tmp_path, text=SCENE):
     return p
 
 
+def test_a_uv_scale_past_the_float_limit_is_refused(tmp_path, cache):
+    """A 2 m plane at 6000 repeats per metre reaches 12,000 repeats: past UV_LIMIT, where float32
+    keeps no position within a texel; said with the mesh and field, not repaired to a flat colour."""
+    _write_scene(tmp_path, SCENE.replace("uv_scale: 4}", "uv_scale: 6000}"))
+    with pytest.raises(SceneError, match=r"ground.*uv_scale: 6000 puts texture coordinates at 1\.2e\+04 repeats"):
+        scenes.load_scene(SceneRef(file="mini.yaml"), tmp_path, cache)
+    _write_scene(tmp_path, SCENE.replace("uv_scale: 4}", "uv_scale: 4000}"))  # 8,000: within
+    scenes.load_scene(SceneRef(file="mini.yaml"), tmp_path, cache)
+
+
 def test_user_scene_file(tmp_path, cache):
     _write_scene(tmp_path)
     ref = SceneRef(file="mini.yaml")

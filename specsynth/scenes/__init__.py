@@ -26,7 +26,7 @@ from ..assets.library import furniture, textures
 from ..assets.meshfiles import primitives as procedural
 from ..assets.meshfiles.part import MeshFileError
 from ..assets.meshfiles.sniff import check_mesh_file
-from ..assets.meshio import MeshData, read_mesh
+from ..assets.meshio import UV_LIMIT, MeshData, read_mesh
 from ..assets.resolve import AssetError
 from ..files import not_a_file, read_regular
 from ..model.conventions import rpy_matrix
@@ -284,8 +284,24 @@ def _finish_geometry(m: SceneMesh, mesh: MeshData, what: str) -> MeshData:
         mesh = procedural.transform_mesh(mesh, np.diag([*scale, 1.0]))
     uv_scale = _uv2(m.material.uv_scale)
     if mesh.uv is not None and not np.allclose(uv_scale, 1.0):
+        _check_uv_scale(mesh.uv, uv_scale, what)
         mesh = replace(mesh, uv=(mesh.uv.astype(np.float64) * uv_scale).astype(np.float32))
     return assets.finish_mesh(mesh, what)
+
+
+def _check_uv_scale(uv: np.ndarray, uv_scale, what: str) -> None:
+    """A ``uv_scale`` that carries valid texture coordinates beyond ``UV_LIMIT`` repeats is the
+    user's mistake, not a broken file: said here, rather than repaired to a flat colour later."""
+    valid = np.isfinite(uv).all(axis=1) & (np.abs(uv) <= UV_LIMIT).all(axis=1)
+    if valid.any():
+        reach = float(np.abs(uv[valid].astype(np.float64) * uv_scale).max())
+        if reach > UV_LIMIT:
+            raise SceneError(f"{what}.material.uv_scale: {_fmt_uv(uv_scale)} puts texture coordinates at {reach:.3g} "
+                             f"repeats, beyond {UV_LIMIT:g} (float32 keeps no position within a texel there); lower it")
+
+
+def _fmt_uv(s) -> str:
+    return f"{s[0]:g}" if s[0] == s[1] else f"[{s[0]:g}, {s[1]:g}]"
 
 
 def _mesh_cache_key(m: SceneMesh, files: list[Path], what: str) -> str:
