@@ -53,15 +53,17 @@ def test_a_dressed_top_keeps_its_stage_area_free_and_its_flat_matter_thin(seed):
 
 def test_a_bigger_top_is_dressed_about_as_densely_per_square_metre_as_a_desk():
     """A lab bench (2.15 x 1.19 m) and an island of two desks (1.6 x 1.6 m) carry about as many things
-    per square metre as a 1.6 x 0.8 m desk: measured 0.81 and 0.79 of its density (0.75 and 0.58
-    with the counts of one desk); what a desk has one of (a lamp, a shelf unit) does not multiply."""
+    per square metre as a 1.6 x 0.8 m desk; what a desk has one of (a lamp, a shelf unit) does not
+    multiply. Medians over seeds, as a shelf unit of binders is a rare dozen meshes: the bench's mean
+    over 8 seeds ranged 0.63-1.01 of the desk's. Measured over 160 seeds: 0.89, 0.91 and 0.87 of the
+    desk's median (bench, square top, island); over the first 24 seeds 0.86, 0.92 and 0.91."""
     def per_m2(w: float, d: float, island: bool = False) -> float:
         top = props.Top(cx=0.0, cy=0.0, width=w, depth=d, yaw=0.0, z=0.75)
-        return np.mean([len(props.dress(top, np.random.default_rng(s), cache_dir(), "desk00", island=island).meshes)
-                        for s in range(8)]) / (w * d)
+        return float(np.median([len(props.dress(top, np.random.default_rng(s), cache_dir(), "desk00",
+                                                island=island).meshes) for s in range(24)])) / (w * d)
     desk = per_m2(1.6, 0.8)
     for w, d, island in ((2.15, 1.19, False), (1.6, 1.6, False), (1.6, 1.6, True)):
-        assert per_m2(w, d, island) > 0.77 * desk, (w, d, island)
+        assert per_m2(w, d, island) > 0.75 * desk, (w, d, island)
 
 
 def test_dressing_is_the_same_for_a_seed_and_empty_at_density_zero():
@@ -98,6 +100,20 @@ def test_some_pages_are_on_coloured_paper_and_screens_show_colour_photographs(tm
         with Image.open(printed.printed.__wrapped__(tmp_path, "screen", i).path) as im:
             hsv = np.asarray(im.convert("RGB").convert("HSV"), np.float32)
         assert hsv[..., 1].mean() > 20, i  # not the black-and-white photograph with a few windows on it
+
+
+def test_a_graphic_poster_is_laid_out_in_one_ink_on_paper_or_the_inks_tint():
+    """Its flat fields (each colour over 5 % of the poster) are paper, one process ink and that ink's
+    tint: no field of a second ink beside the first."""
+    paper, inks = printed.PRINT_COLOURS[-2], printed.PRINT_COLOURS[:-2]
+    for seed in range(24):
+        im, _ = printed._graphic_poster(np.random.default_rng(seed), (120, 168))
+        px = np.asarray(im.convert("RGB")).reshape(-1, 3)
+        colours, counts = np.unique(px, axis=0, return_counts=True)
+        fields = {tuple(int(v) for v in c) for c in colours[counts > 0.05 * len(px)]}
+        used = [ink for ink in inks if ink in fields]
+        assert len(used) == 1, (seed, fields)
+        assert fields <= {paper, used[0], printed.tint(used[0])}, (seed, fields)
 
 
 @settings(max_examples=40, deadline=None)

@@ -23,9 +23,10 @@ import numpy as np
 from ...atomic import atomic_write_bytes
 from . import pictures
 
-VERSION = 5  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards.
+VERSION = 6  # 2: pages with tables and charts, LM-O-like boards, more variants. 3: open magazines, finer boards.
 # 4: the boards' black at BLACK (it was 12, 0.4 % reflectance). 5: coloured paper; screens, covers and
-# posters show colour photographs only; half of the posters graphic.
+# posters show colour photographs only; half of the posters graphic. 6: a graphic poster in one ink
+# on paper or the ink's tint.
 # Variants drawn per kind (a scene picks among them by its seed) and each kind's size in pixels.
 VARIANTS = {"page": 24, "magazine": 24, "board": 6, "cover": 24, "keyboard": 3, "screen": 12, "cardboard": 6,
             "poster": 16}
@@ -45,6 +46,8 @@ COLOURED_PAPER = 0.3
 # two-ink mixes, as printed colour fields come out; and paper white and black.
 PRINT_COLOURS = ((250, 220, 0), (230, 0, 126), (0, 160, 227), (226, 30, 36), (0, 150, 64), (45, 46, 131),
                  (244, 244, 240), (30, 30, 30))
+# A tint: the ink screened to this share of the paper, as a lighter field of the same colour prints.
+TINT = 0.45
 KIND_CODE = {k: i for i, k in enumerate(sorted(VARIANTS))}
 FONT_CREDIT = {"asset": "font:aileron", "name": "Aileron Regular (the font built into Pillow)",
                "author": "Sora Sagano (dotcolon.net)", "licence": "CC0-1.0", "source": "Pillow"}
@@ -331,8 +334,10 @@ def _cardboard(rng, size):
 
 def _poster(rng, size):
     """Half of them a photograph with a coloured band and a title; the others graphic, as
-    advertisements and magazine covers are: fields of printing-ink colours, a photograph in a
-    frame, a title and lines of text."""
+    advertisements and magazine covers are: paper or a tint with a field of one printing ink, a
+    photograph in a frame, a title and lines of text. One ink, as posters of two or three inks side
+    by side (yellow beside blue) made lmo_pbr_h's closest views more colourful than any real LM-O
+    photograph (docs/realism.md)."""
     return _photo_poster(rng, size) if rng.random() < 0.5 else _graphic_poster(rng, size)
 
 
@@ -348,25 +353,31 @@ def _photo_poster(rng, size):
     return im, [credit]
 
 
+def tint(ink: tuple[int, int, int]) -> tuple[int, int, int]:
+    """``ink`` screened to TINT on paper white (PRINT_COLOURS[-2])."""
+    return tuple(int(round(TINT * i + (1 - TINT) * p)) for i, p in zip(ink, PRINT_COLOURS[-2]))
+
+
 def _graphic_poster(rng, size):
     from PIL import Image, ImageDraw
 
     w, h = size
-    inks = [PRINT_COLOURS[int(k)] for k in rng.permutation(len(PRINT_COLOURS))]
-    im = Image.new("RGB", size, inks[0])
+    ink = PRINT_COLOURS[int(rng.integers(len(PRINT_COLOURS) - 2))]
+    fields = [(PRINT_COLOURS[-2], tint(ink))[int(rng.integers(2))], ink]
+    im = Image.new("RGB", size, fields[0])
     d = ImageDraw.Draw(im)
-    for ink in inks[1:int(rng.integers(3, 5))]:  # two or three fields, from an edge
-        across = float(rng.uniform(0.2, 0.5))
+    for field in fields[1:]:  # a field of the ink from an edge
+        across = float(rng.uniform(0.15, 0.4))
         box = [(0, 0, w, int(h * across)), (0, int(h * (1 - across)), w, h), (0, 0, int(w * across), h),
                (int(w * (1 - across)), 0, w, h)][int(rng.integers(4))]
-        d.rectangle(box, fill=ink)
+        d.rectangle(box, fill=field)
     x0, y0 = int(w * rng.uniform(0.08, 0.3)), int(h * rng.uniform(0.2, 0.45))
     pw, ph = int(w * rng.uniform(0.45, 0.62)), int(h * rng.uniform(0.25, 0.4))
     picture, credit = _photograph(rng, (pw, ph), colour=True)
     im.paste(picture, (x0, y0))
-    ink = (250, 250, 250) if sum(inks[0]) < 400 else (20, 20, 20)
-    d.text((int(w * 0.06), int(h * 0.04)), _words(rng, 1)[0].upper()[:8], fill=ink, font=_font(int(h * 0.1)))
-    _text_block(d, rng, int(w * 0.06), int(h * 0.78), int(w * 0.94), int(h * 0.96), int(h * 0.025), ink)
+    text = (250, 250, 250) if sum(fields[0]) < 400 else (20, 20, 20)
+    d.text((int(w * 0.06), int(h * 0.04)), _words(rng, 1)[0].upper()[:8], fill=text, font=_font(int(h * 0.1)))
+    _text_block(d, rng, int(w * 0.06), int(h * 0.78), int(w * 0.94), int(h * 0.96), int(h * 0.025), text)
     return im, [credit]
 
 
