@@ -105,7 +105,7 @@ def test_some_pages_are_on_coloured_paper_and_screens_show_colour_photographs(tm
 def test_a_graphic_poster_is_laid_out_in_one_ink_on_paper_or_the_inks_tint():
     """Its flat fields (each colour over 5 % of the poster) are paper, one process ink and that ink's
     tint: no field of a second ink beside the first."""
-    paper, inks = printed.PRINT_COLOURS[-2], printed.PRINT_COLOURS[:-2]
+    paper, inks = printed.PAPER_WHITE, printed.INKS
     for seed in range(24):
         im, _ = printed._graphic_poster(np.random.default_rng(seed), (120, 168))
         px = np.asarray(im.convert("RGB")).reshape(-1, 3)

@@ -46,6 +46,7 @@ COLOURED_PAPER = 0.3
 # two-ink mixes, as printed colour fields come out; and paper white and black.
 PRINT_COLOURS = ((250, 220, 0), (230, 0, 126), (0, 160, 227), (226, 30, 36), (0, 150, 64), (45, 46, 131),
                  (244, 244, 240), (30, 30, 30))
+INKS, PAPER_WHITE = PRINT_COLOURS[:6], PRINT_COLOURS[6]
 # A tint: the ink screened to this share of the paper, as a lighter field of the same colour prints.
 TINT = 0.45
 KIND_CODE = {k: i for i, k in enumerate(sorted(VARIANTS))}
@@ -354,28 +355,27 @@ def _photo_poster(rng, size):
 
 
 def tint(ink: tuple[int, int, int]) -> tuple[int, int, int]:
-    """``ink`` screened to TINT on paper white (PRINT_COLOURS[-2])."""
-    return tuple(int(round(TINT * i + (1 - TINT) * p)) for i, p in zip(ink, PRINT_COLOURS[-2]))
+    """``ink`` screened to TINT on PAPER_WHITE."""
+    return tuple(int(round(TINT * i + (1 - TINT) * p)) for i, p in zip(ink, PAPER_WHITE))
 
 
 def _graphic_poster(rng, size):
     from PIL import Image, ImageDraw
 
     w, h = size
-    ink = PRINT_COLOURS[int(rng.integers(len(PRINT_COLOURS) - 2))]
-    fields = [(PRINT_COLOURS[-2], tint(ink))[int(rng.integers(2))], ink]
-    im = Image.new("RGB", size, fields[0])
+    ink = INKS[int(rng.integers(len(INKS)))]
+    ground = (PAPER_WHITE, tint(ink))[int(rng.integers(2))]
+    im = Image.new("RGB", size, ground)
     d = ImageDraw.Draw(im)
-    for field in fields[1:]:  # a field of the ink from an edge
-        across = float(rng.uniform(0.15, 0.4))
-        box = [(0, 0, w, int(h * across)), (0, int(h * (1 - across)), w, h), (0, 0, int(w * across), h),
-               (int(w * (1 - across)), 0, w, h)][int(rng.integers(4))]
-        d.rectangle(box, fill=field)
+    across = float(rng.uniform(0.15, 0.4))  # a field of the ink from an edge
+    box = [(0, 0, w, int(h * across)), (0, int(h * (1 - across)), w, h), (0, 0, int(w * across), h),
+           (int(w * (1 - across)), 0, w, h)][int(rng.integers(4))]
+    d.rectangle(box, fill=ink)
     x0, y0 = int(w * rng.uniform(0.08, 0.3)), int(h * rng.uniform(0.2, 0.45))
     pw, ph = int(w * rng.uniform(0.45, 0.62)), int(h * rng.uniform(0.25, 0.4))
     picture, credit = _photograph(rng, (pw, ph), colour=True)
     im.paste(picture, (x0, y0))
-    text = (250, 250, 250) if sum(fields[0]) < 400 else (20, 20, 20)
+    text = (20, 20, 20)  # on paper or a tint, both light
     d.text((int(w * 0.06), int(h * 0.04)), _words(rng, 1)[0].upper()[:8], fill=text, font=_font(int(h * 0.1)))
     _text_block(d, rng, int(w * 0.06), int(h * 0.78), int(w * 0.94), int(h * 0.96), int(h * 0.025), text)
     return im, [credit]
