@@ -195,15 +195,18 @@ def test_a_distractor_drawn_twice_is_dropped_twice_by_a_cold_worker(tmp_path):
     assert [a.name for a in assets] == ["teddy", "random_urdfs/007", "teddy"] and assets[0] is assets[2]
 
 
-PAINTED = SPEC.replace('objects: ["random_urdfs/*", teddy]}', 'objects: [teddy, toys/cube], paint: 1.0, annotate: true}') \
+PAINTED = SPEC.replace('objects: ["random_urdfs/*", teddy]}', 'objects: [teddy, toys/cube], paint: 1.0, paint_saturation: [0.3, 0.4], annotate: true}') \
     .replace("builtin: [duck, mug]", "builtin: [mug]").replace("image_format: png}", "image_format: png, albedo: true}") \
     .replace("  - name: room\n    randomize: {materials: 1.0, roughness: 0.2, light_temperature: [2700, 6500], "
              "light_strength: [0.5, 2.0],\n                light_position: 0.3}\n", "  - name: room\n")
 
 
 def test_painted_distractors_are_drawn_in_their_colour(tmp_path):
-    """distractors.paint: each painted distractor is one plastic colour, kept in its record, and
-    drawn in it (its albedo under its own mask is that colour); paint 0 draws nothing."""
+    """distractors.paint: each painted distractor is one plastic colour of the spec's saturation,
+    kept in its record, and drawn in it (its albedo under its own mask is that colour); paint 0
+    draws nothing."""
+    import colorsys
+
     from specsynth.model.colour import linear_to_srgb
 
     f = tmp_path / "dr.yaml"
@@ -215,6 +218,8 @@ def test_painted_distractors_are_drawn_in_their_colour(tmp_path):
     painted = [o for r in recs.values() for o in r.objects if o.obj_id > 1]
     assert len(painted) >= 4 and all(o.color is not None for o in painted)
     assert len({tuple(o.color) for o in painted}) == len(painted)  # each its own colour
+    assert all(0.3 - 1e-6 <= colorsys.rgb_to_hsv(*linear_to_srgb(np.asarray(o.color)))[1] <= 0.4 + 1e-6
+               for o in painted)
     assert all(o.color is None for r in recs.values() for o in r.objects if o.obj_id == 1)
     chunk = tmp_path / "out" / "bop" / "train_pbr" / "000000"
     gt = json.loads((chunk / "scene_gt.json").read_text())
@@ -261,15 +266,16 @@ def test_painted_distractors_keep_their_paint_through_randomised_materials(tmp_p
 
 
 @settings(max_examples=50, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), share=st.floats(0.0, 1.0))
-def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share):
+@given(seed=st.integers(0, 2**32 - 1), share=st.floats(0.0, 1.0),
+       saturation=st.tuples(st.floats(0.0, 1.0), st.floats(0.0, 1.0)).map(sorted))
+def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share, saturation):
     import colorsys
 
     from specsynth.model.colour import linear_to_srgb
     from specsynth.run.arrange import PLASTIC_HUE_JITTER, PLASTIC_HUES, paint_color
 
     rng = np.random.default_rng(seed)
-    colours = [paint_color(share, rng) for _ in range(200)]
+    colours = [paint_color(share, rng, tuple(saturation)) for _ in range(200)]
     if share == 0.0:
         assert all(c is None for c in colours)
         assert rng.random() == np.random.default_rng(seed).random()  # nothing drawn
@@ -278,6 +284,8 @@ def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share):
     assert abs(len(painted) / 200 - share) < 0.2
     for c in painted:
         h, s, v = colorsys.rgb_to_hsv(*linear_to_srgb(np.asarray(c)))
-        assert 0.6 - 1e-6 <= s <= 0.95 + 1e-6 and 0.6 - 1e-6 <= v <= 1.0 + 1e-6
+        assert saturation[0] - 1e-6 <= s <= saturation[1] + 1e-6 and 0.6 - 1e-6 <= v <= 1.0 + 1e-6
+        if s < 1e-3:
+            continue  # a grey has no hue
         # a toy's hue: within the jitter of one of the palette's (on the hue circle)
         assert min(abs((h - hue + 0.5) % 1.0 - 0.5) for hue, _ in PLASTIC_HUES) <= PLASTIC_HUE_JITTER + 1e-4

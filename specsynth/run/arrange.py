@@ -95,7 +95,7 @@ class ArrangeStep:
                   for n, (i, pose) in enumerate(targets)]
         d = self.inputs.arrangements.distractors
         others = [PlacedObject(obj_id=0, inst=n, name=distractors[i - len(drop)].name, pose=np.asarray(pose).tolist(),
-                               color=paint_color(d.paint, paint_rng))
+                               color=paint_color(d.paint, paint_rng, d.paint_saturation))
                   for n, (i, pose) in enumerate((i, pose) for i, pose in kept if i >= len(drop))]
         if not d.annotate:
             return placed, others
@@ -119,19 +119,19 @@ class ArrangeStep:
 # as yellow ones (docs/realism.md).
 PLASTIC_HUES = ((0.0, 0.22), (0.07, 0.12), (0.14, 0.3), (0.33, 0.1), (0.6, 0.2), (0.93, 0.06))
 PLASTIC_HUE_JITTER = 0.025
-PLASTIC_SATURATION = (0.6, 0.95)  # HSV, of the encoded (sRGB) colour
 PLASTIC_VALUE = (0.6, 1.0)  # dyed plastics are bright; a dark one is the exception, not a third
 
 
-def paint_color(share: float, rng: np.random.Generator) -> list[float] | None:
+def paint_color(share: float, rng: np.random.Generator, saturation: tuple[float, float]) -> list[float] | None:
     """A plastic colour (linear RGB) for one distractor with probability ``share``, else None (its
-    own colours). Nothing is drawn at 0, so a spec without paint draws as before."""
+    own colours); ``saturation`` is the HSV range of the encoded (sRGB) colour. Nothing is drawn at
+    0, so a spec without paint draws as before."""
     if share <= 0.0 or rng.random() >= share:
         return None
     hues, weights = zip(*PLASTIC_HUES)
     h = hues[int(rng.choice(len(hues), p=np.asarray(weights) / sum(weights)))]
     h = (h + rng.uniform(-PLASTIC_HUE_JITTER, PLASTIC_HUE_JITTER)) % 1.0
-    s, v = rng.uniform(*PLASTIC_SATURATION), rng.uniform(*PLASTIC_VALUE)
+    s, v = rng.uniform(*saturation), rng.uniform(*PLASTIC_VALUE)
     encoded = np.asarray(colorsys.hsv_to_rgb(h, s, v))
     return srgb_to_linear(encoded).tolist()
 

@@ -312,9 +312,14 @@ class Distractors(Strict):
     paint: float = Field(
         0.0, ge=0.0, le=1.0,
         description="Share of the distractors painted one random plastic colour (a toy's: mostly yellow, red, blue, some "
-        "orange, green and pink; HSV saturation 0.6-0.95, value 0.6-1), replacing the model's own colours and colour "
+        "orange, green and pink; HSV saturation paint_saturation, value 0.6-1), replacing the model's own colours and colour "
         "texture (a plastic: neither metal nor glass): 0 keeps every model's own look. Each distractor is "
         "painted or not by its own draw; an annotated one keeps its model's own colours in bop/models.")
+    paint_saturation: FloatRange(0.0, 1.0) = Field(
+        (0.6, 0.95),
+        description="HSV saturation range of the paint (of the encoded sRGB colour), drawn per painted distractor: "
+        "lower it where the real images' toys are duller or fill less of the view (lmo_pbr_h uses 0.45-0.8; "
+        "docs/realism.md).")
     annotate: bool = Field(
         False, description="Annotate the distractors too (BOP's 'other objects'): each distractor model gets an obj_id "
         "after the dataset's objects, stable across builds (N + 1 + its position in 'objects'; random_urdfs/k after "
