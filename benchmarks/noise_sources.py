@@ -45,7 +45,7 @@ def main() -> None:
     arec, vrec, seed = picked[0]
     spec = graph.spec.model_copy(update={"intrinsics": scaled_intrinsics(graph.spec.intrinsics, args.scale)})
     world = World(BuildInputs.of(spec).arrange, graph.spec_path.parent)
-    scene, cam = world.render_scene(arec), Optics(spec.intrinsics).camera(vrec.R_w2c, vrec.t_w2c)
+    scene, cam = world.render_scene(arec, graph.inputs.render.materials), Optics(spec.intrinsics).camera(vrec.R_w2c, vrec.t_w2c)
     rows = []
 
     def measure(backend_name, label, options, tweak=None):

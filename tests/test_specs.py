@@ -72,7 +72,8 @@ def test_env_var_points_at_models(ruapc_models, tmp_path):
 
 
 def test_lmo_and_bl_share_cameras(lm_models):
-    """Switching the backend keeps arrangement and camera jobs (same keys)."""
+    """Switching the backend keeps arrangement and camera jobs (same keys), and so do the
+    baseline's own materials (render inputs)."""
     from specsynth.plan.compiler import compile_spec
     from specsynth.spec.yamlio import load_spec
 
@@ -80,6 +81,7 @@ def test_lmo_and_bl_share_cameras(lm_models):
     h = compile_spec(load_spec(ROOT / "specs/lmo_pbr_h.yaml", s))
     bl = compile_spec(load_spec(ROOT / "specs/lmo_bl.yaml", s))
     low = compile_spec(load_spec(ROOT / "specs/lmo_pbr_l.yaml", s))
+    assert bl.spec.objects.materials != h.spec.objects.materials
     for g in (bl, low):
         assert g.stage_digests["arrange"] == h.stage_digests["arrange"]
         assert g.stage_digests["view"] == h.stage_digests["view"]

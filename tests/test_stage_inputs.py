@@ -72,6 +72,22 @@ def test_the_stage_a_field_re_runs_comes_from_the_inputs():
     assert stage_of_field("arrangements.count") is None
     assert stage_of_field("cameras.stereo") == "render"  # the view draws cameras, not their optics
     assert stage_of_field("metadata.license.url") is None
+    assert stage_of_field("objects.instances") == "arrange"
+    assert stage_of_field("objects.materials.duck.color_gain") == "render"  # a dressing: nothing settles again
+
+
+def test_a_material_edit_renders_again_and_keeps_the_arrangements_and_cameras(tmp_path):
+    """Materials are the renders' inputs: a baseline or a refitted colour gain shares the PBR
+    spec's arrangement and camera jobs, and the arrange jobs resolve each model in its own look."""
+    f = tmp_path / "s.yaml"
+    f.write_text(SPEC)
+    plain = compile_spec(load_spec(f, []))
+    dressed = compile_spec(load_spec(f, ["objects.materials={duck: {color_gain: [2, 1, 1]}, default: {roughness: 0.2}}"]))
+    assert dressed.stage_digests["arrange"] == plain.stage_digests["arrange"]
+    assert dressed.stage_digests["view"] == plain.stage_digests["view"]
+    assert dressed.stage_digests["render"] != plain.stage_digests["render"]
+    assert "materials" not in type(dressed.inputs.arrange.objects).model_fields
+    assert dressed.inputs.render.materials["duck"].color_gain == (2.0, 1.0, 1.0)
 
 
 def test_workers_get_the_inputs_not_the_spec(tmp_path):

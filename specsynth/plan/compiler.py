@@ -284,14 +284,16 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         field = e.field or "objects"
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))
         asset_hashes = {}
-    # Files the spec names only by path: their bytes, not their names, go into the keys.
+    # Files the spec names only by path: their bytes, not their names, go into the keys (a
+    # material's into the renders': materials are only theirs).
+    texture_hashes = {}
     for key, mat in spec.objects.materials.items():
         if mat.texture is None:
             continue
         field = f"objects.materials.{key}.texture"
         try:
             tex = expand_path(mat.texture, loaded.directory, field)
-            asset_hashes[f"texture:{key}"] = file_digest(tex, field)
+            texture_hashes[f"texture:{key}"] = file_digest(tex, field)
             check_texture(tex, field)
         except AssetError as e:
             problems.append(loaded.locate(field, str(e)))
@@ -323,7 +325,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     backend = backend_fingerprint(spec.backend.name)
     extra = {"arrange": dict(asset_hashes), "view": {"annotator": f"pyrender {dist_version('pyrender')}"},
              "render": {"backend": backend, "products": product_fingerprints(inputs.render),
-                        **_input_folders(spec, loaded)}}
+                        **texture_hashes, **_input_folders(spec, loaded)}}
     if spec.quality.control == "error":  # only these renders are the error control's
         way = ", continued halves" if backend_plugin(spec.backend.name).capabilities.continues_samples else ""
         extra["render"]["error_control"] = f"revision {error_control.REVISION}{way}"
@@ -340,7 +342,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         inputs=inputs,
         stage_inputs=stage_inputs,
         stage_digests=stage_digests,
-        asset_hashes={**asset_hashes, **scene_hashes},
+        asset_hashes={**asset_hashes, **texture_hashes, **scene_hashes},
         backend=backend,
         scene_keys=tuple(scene_hashes[f"scene:{ref.ref}"] for ref in spec.scenes),
         notes=tuple(notes),

@@ -12,16 +12,19 @@ Each field names where it is cut from (``From``), relative to the value its mode
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Any, Iterator, Literal, get_args, get_origin
+from typing import Annotated, Any, Iterator, Literal, Mapping, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, SerializeAsAny
 
 from ..spec.models import (
     BackendOptions,
+    BuiltinObject,
     DatasetSpec,
     DepthOfField,
     Distractors,
     Intrinsics,
+    Material,
+    MeshObject,
     MotionBlur,
     Objects,
     Physics,
@@ -115,12 +118,29 @@ class ArrangementDraws(Cut):
     distractors: Annotated[Distractors, From("distractors")]
 
 
+class ObjectDraws(Cut):
+    """Which object models an arrangement drops and how many; not their materials, which only
+    renders read (``RenderInputs.materials``): a new colour gain renders again and settles nothing."""
+
+    path: Annotated[str | None, From("path")]
+    ids: Annotated[list[int] | None, From("ids")]
+    builtin: Annotated[list[Union[str, BuiltinObject]], From("builtin")]
+    meshes: Annotated[list[MeshObject], From("meshes")]
+    instances: Annotated[tuple[int, int], From("instances")]
+    orientation: Annotated[Literal["canonical", "random"], From("orientation")]
+    models_per_arrangement: Annotated[tuple[int, int] | None, From("models_per_arrangement")]
+
+    def with_materials(self, materials: Mapping[str, Material]) -> Objects:
+        """The spec's objects with ``materials`` as their overrides (none: each model's own look)."""
+        return Objects(**dict(self), materials=dict(materials))
+
+
 class ArrangeInputs(StageInputs):
     """The arrange step's: what is dropped, where, how. Views and renders rebuild an arrangement's
     scene from its record with these too (its key is their upstream key)."""
 
     seed: Annotated[int, From("seed")]
-    objects: Annotated[Objects, From("objects")]
+    objects: Annotated[ObjectDraws, From("objects")]
     scenes: Annotated[tuple[SceneRef, ...], From("scenes")]
     arrangements: Annotated[ArrangementDraws, From("arrangements")]
 
@@ -159,9 +179,11 @@ class RenderedFiles(Cut):
 
 
 class RenderInputs(StageInputs):
-    """The render step's: the renderer and its quality, the camera's optics, the sensor, the files."""
+    """The render step's: the objects' materials, the renderer and its quality, the camera's optics,
+    the sensor, the files."""
 
     arrange: Annotated[ArrangeInputs, From("")]
+    materials: Annotated[dict[str, Material], From("objects.materials")]
     intrinsics: Annotated[Intrinsics, From("intrinsics")]
     stereo: Annotated[Stereo | None, From("cameras.stereo")]
     depth_of_field: Annotated[DepthOfField | None, From("cameras.depth_of_field")]

@@ -32,7 +32,7 @@ from ..spec.models import PAPER_PRESETS, QualityPreset
 from .build import build
 from .render import draw_to_target
 from .store import Store, write_json
-from .worker import Optics, World
+from .worker import Materials, Optics, World
 
 
 @dataclass(frozen=True)
@@ -42,9 +42,10 @@ class Shots:
 
     world: World
     optics: Optics
+    materials: Materials  # the spec's objects' (a render input)
 
     def scene(self, arec: ArrangementRecord):
-        return self.world.render_scene(arec)
+        return self.world.render_scene(arec, self.materials)
 
     def camera(self, vrec: ViewRecord):
         return self.optics.camera(vrec.R_w2c, vrec.t_w2c)
@@ -326,7 +327,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         base_opts = base_options(spec.backend, plugin)
         # One BLAS thread, as in a build's workers (tasks.Steps): only the renderer is timed.
         with threadpool_limits(limits=1, user_api="blas"):
-            shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small))
+            shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small), spec.objects.materials)
             refs: dict[int, Reference] = {}
             settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only, plugin.capabilities.denoise)
             settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it

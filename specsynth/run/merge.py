@@ -100,15 +100,17 @@ def collect(pipe: Pipeline, summary: BuildSummary) -> tuple[list[ImageEntry], li
 
 
 def dataset_models(graph: JobGraph, images: list[ImageEntry], pipe: Pipeline | None = None) -> list[ObjectAsset]:
-    """The models the dataset's annotations name: the spec's objects, and the annotated
-    distractors that appear (each under the obj_id it was annotated with). The workers' when
-    they reported them all and their files are on this machine, else resolved here."""
+    """The models the dataset's annotations name: the spec's objects in their own look (not the
+    renders' ``objects.materials``), and the annotated distractors that appear (each under the
+    obj_id it was annotated with). The workers' when they reported them all and their files are
+    on this machine, else resolved here."""
     reported = _reported_models(graph, images, pipe) if pipe is not None else None
     if reported is not None:
         return reported
     from ..spec.models import Objects
 
-    models = resolve_objects(graph.spec.objects, graph.spec_path.parent)
+    # Each model's own look, as the arrange jobs report them: materials are the renders' dressing.
+    models = resolve_objects(graph.inputs.arrange.objects.with_materials({}), graph.spec_path.parent)
     d, n = graph.spec.arrangements.distractors, len(models)
     extra = _extra_ids(images, models)
     if not (d.annotate and extra):

@@ -132,7 +132,8 @@ class RenderStep:
 
     def load(self, arrange_key: str) -> RenderCall:
         """The arrangement, loaded into the backend and the annotator unless they hold it."""
-        framed = self.world.frame(ArrangementRecord.from_json(self.store.load("arrange", arrange_key)))
+        framed = self.world.frame(ArrangementRecord.from_json(self.store.load("arrange", arrange_key)),
+                                  self.setup.inputs.materials)
         seconds = self.backend.load(arrange_key, framed.scene) + self.annotator.load(arrange_key, framed.scene)
         return RenderCall(arrange_key, framed, seconds, self.backend.get().version())
 

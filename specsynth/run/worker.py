@@ -5,11 +5,12 @@ inputs determine, so no result depends on which step asked for it first."""
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -22,10 +23,11 @@ from ..plan.compiler import arr_id
 from ..plan.inputs import ArrangeInputs, BuildInputs
 from ..scenes import load_scene
 from ..scenes.types import SceneDesc
-from ..spec.models import Intrinsics, SceneRef
+from ..spec.models import Intrinsics, Material, SceneRef
 from ..views import cameras
 
 PROCEDURAL_KEPT = 2  # procedural rooms a worker keeps loaded (one per arrangement in flight)
+Materials = Mapping[str, Material] | None  # the spec's objects.materials, a render input
 
 
 @dataclass(frozen=True)
@@ -56,21 +58,24 @@ class Framed:
 
 class World:
     """Arrangements' scenes rebuilt from their records with one stage's ``ArrangeInputs`` (every
-    step rebuilds them alike): the spec's objects resolved once, the drawn distractors once each,
-    scenes loaded once (the last few procedural rooms)."""
+    step rebuilds them alike): the spec's objects resolved once (per set of materials: the
+    renders' are theirs, ``RenderInputs.materials``; without, each model's own look), the drawn
+    distractors once each, scenes loaded once (the last few procedural rooms)."""
 
     def __init__(self, inputs: ArrangeInputs, spec_dir: Path):
         self.inputs = inputs
         self.spec_dir = spec_dir
-        self._assets: list[ObjectAsset] | None = None
+        self._assets: dict[str, list[ObjectAsset]] = {}
         self._scenes: dict[tuple[str, int | None], SceneDesc] = {}
         self._distractors: dict[str, ObjectAsset] = {}
         self._has_uv: dict[str, bool] = {}
 
-    def assets(self) -> list[ObjectAsset]:
-        if self._assets is None:
-            self._assets = resolve_objects(self.inputs.objects, self.spec_dir)
-        return self._assets
+    def assets(self, materials: Materials = None) -> list[ObjectAsset]:
+        """The spec's objects, dressed in ``materials`` (the spec's ``objects.materials``)."""
+        key = json.dumps({k: m.model_dump(mode="json") for k, m in (materials or {}).items()}, sort_keys=True)
+        if key not in self._assets:
+            self._assets[key] = resolve_objects(self.inputs.objects.with_materials(materials or {}), self.spec_dir)
+        return self._assets[key]
 
     def scene(self, ref: SceneRef, variant: int | None = None) -> SceneDesc:
         key = (ref.model_dump_json(), variant)  # the whole reference: stages, room, clutter all shape the scene
@@ -91,9 +96,10 @@ class World:
                 return ref
         raise KeyError(name)
 
-    def render_scene(self, arr: ArrangementRecord) -> RenderScene:
-        """The arrangement in world coordinates (see ``frame`` for what renderers get)."""
-        by_id = self.assets_by_id(arr)
+    def render_scene(self, arr: ArrangementRecord, materials: Materials = None) -> RenderScene:
+        """The arrangement in world coordinates, its objects in ``materials`` (see ``frame`` for
+        what renderers get)."""
+        by_id = self.assets_by_id(arr, materials)
         objects = tuple(
             MeshInstance(name=f"obj_{o.obj_id:06d}_{o.inst:03d}", mesh_path=by_id[o.obj_id].mesh_path,
                          mesh_key=by_id[o.obj_id].mesh_key, pose=as_tuple(np.asarray(o.pose)),
@@ -108,18 +114,18 @@ class World:
                                 world=scene.world)
         return _painted(self._randomized(scene, ref, arr.arr), arr.distractors)
 
-    def frame(self, arr: ArrangementRecord) -> Framed:
+    def frame(self, arr: ArrangementRecord, materials: Materials = None) -> Framed:
         """The arrangement re-centred on its objects (renderers work in float32 near the origin)."""
-        scene = self.render_scene(arr)
+        scene = self.render_scene(arr, materials)
         objs = scene.objects()
         origin = np.mean([o.matrix[:3, 3] for o in objs], axis=0) if objs else np.zeros(3)
-        return Framed(arr, scene.translated(origin), origin, self.assets_by_id(arr))
+        return Framed(arr, scene.translated(origin), origin, self.assets_by_id(arr, materials))
 
-    def assets_by_id(self, arr: ArrangementRecord) -> dict[int, ObjectAsset]:
+    def assets_by_id(self, arr: ArrangementRecord, materials: Materials = None) -> dict[int, ObjectAsset]:
         """The dataset's objects and, when annotated, the arrangement's distractors, by obj_id."""
-        by_id = {a.obj_id: a for a in self.assets()}
+        by_id = {a.obj_id: a for a in self.assets(materials)}
         extra = sorted({o.name for o in arr.objects if o.obj_id not in by_id})
-        d, n = self.inputs.arrangements.distractors, len(self.assets())
+        d, n = self.inputs.arrangements.distractors, len(by_id)
         for a in self.distractor_assets(extra):
             by_id[d.obj_id(a.name, n)] = replace(a, obj_id=d.obj_id(a.name, n))
         return by_id

@@ -147,7 +147,9 @@ class Objects(Strict):
     )
     materials: dict[str, Material] = Field(
         default_factory=dict,
-        description="Material overrides keyed by 'default', an obj id ('5') or a built-in name ('duck').",
+        description="Material overrides keyed by 'default', an obj id ('5') or a built-in name ('duck'). Only "
+        "renders read them: an edit renders again and keeps the arrangements and cameras; bop/models keep each "
+        "model's own look.",
     )
 
     @field_validator("instances")
