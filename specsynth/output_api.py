@@ -117,7 +117,7 @@ class Merge:
     out: Path  # where to write: the build's staging folder, swapped into ``final_out`` once every writer is done
     spec: DatasetSpec
     parts: tuple[Part, ...]
-    models: tuple[ObjectAsset, ...]  # every obj_id the annotations name
+    models: tuple[ObjectAsset, ...]  # every obj_id the annotations name, in its own look (not objects.materials)
     enabled: frozenset[str]  # the writers switched on
     kinds: frozenset[str]  # every file kind an installed product may write, and "rgb"
     final: Path | None = None  # the dataset's folder once in place (None: ``out``)
