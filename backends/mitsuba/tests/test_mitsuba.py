@@ -367,10 +367,10 @@ def kernel_misses(tmp: str) -> list[dict]:
 @pytest.mark.slow
 def test_new_arrangement_reuses_kernels(tmp_path):
     """A new arrangement with the same structure (moved objects, other colours) must not
-    recompile: kernels key on object registry ids, which load() keeps stable. In a process of its
-    own, as a worker's: after the slow tests of tests/, of the Cycles backend and of this module in
-    one process, a kernel was compiled again (with the module's backend, and with one of its own),
-    never when run alone."""
+    recompile: kernels key on the order of the objects' registry ids, which load() keeps stable
+    (it frees the old scene first and loads serially: parallel loading created the emitters in a
+    varying order, and about every other run compiled the render kernel again at the second
+    arrangement). In a process of its own, as a worker's."""
     import json
     import subprocess
     import sys
