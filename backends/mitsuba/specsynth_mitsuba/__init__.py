@@ -32,8 +32,9 @@ PLUGIN = BackendPlugin(
     distributions=("mitsuba", "drjit", "pyoidn"),
     # 2: exact K sensor for fy != fx, stratified sampler, albedo calibrated to Cycles, sky units,
     # see-through area lights. 3: calibrated quality levels. 4: denoiser guides from their own pass.
-    # 5: the guides at the beauty's samples and seed.
-    revision=5,
+    # 5: the guides at the beauty's samples and seed. 6: the guides at up to 16x the beauty's
+    # samples (at most 64), its seed.
+    revision=6,
     cost=(0.11, 0.122),
     checks="specsynth_mitsuba.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",

@@ -141,13 +141,14 @@ class MitsubaBackend:
         check_finite(linear, f"mitsuba render ({self.variant})")
         linear = np.ascontiguousarray(np.maximum(linear, 0.0))
         t_read = time.perf_counter()
-        denoise_seconds = guide_seconds = noisy = guides = None
+        denoise_seconds = guide_seconds = noisy = guides = guide_spp = None
         if self.options.denoise:
             noisy = linear
-            # The guides take the beauty's samples and seed, hence its sample positions in each
-            # pixel: with fewer (4), their antialiased edges differed from the image's and OIDN
-            # drew those edges into it (36 spp + OIDN at 320x240: 29.8 -> 31.1 dB, docs/backends/mitsuba.md).
-            guides = self._guides(sensor, seed_arg, st.spp)
+            # The guides take the beauty's seed and at least its samples (mapping.guide_samples):
+            # with fewer (4), their antialiased edges differed from the image's and OIDN drew those
+            # edges into it; with more they are the true edges (docs/backends/mitsuba.md).
+            guide_spp = mapping.round_spp(mapping.guide_samples(st.spp), st.sampler)
+            guides = self._guides(sensor, seed_arg, guide_spp)
             t1 = time.perf_counter()
             guide_seconds = t1 - t_read
             guides = np.ascontiguousarray(guides[..., 0:6], np.float32)
@@ -170,6 +171,8 @@ class MitsubaBackend:
             stats["fy_error_px"] = sset.fy_error_px
         if clamp is not None:
             stats["clamp_ignored"] = clamp
+        if self.options.denoise:
+            stats["guide_spp"] = guide_spp
         if denoise_seconds is not None:
             stats["denoise_seconds"] = denoise_seconds
         t_tone = time.perf_counter()

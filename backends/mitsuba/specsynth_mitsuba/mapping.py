@@ -62,6 +62,22 @@ def round_spp(spp: int, sampler: str) -> int:
     return spp
 
 
+GUIDE_SAMPLES = 64  # samples per pixel the denoiser's guides take at most
+GUIDE_FACTOR = 16  # ... and at most this many times the image's
+
+
+def guide_samples(spp: int) -> int:
+    """Samples per pixel of the denoiser's guide pass for an image of ``spp``: at least the image's
+    (guides from fewer put other antialiased edges into it), up to 16x them and 64. The pass traces
+    one ray per sample, so cleaner guides are cheap, and OIDN, taking them as clean, then keeps the
+    true edges and texture where a few samples leave them noisy. Measured on two demo views at
+    320x240 (OIDN ``high``, guides taken as clean): 1 spp 20.96 -> 27.51 dB, 4 spp 27.14 -> 29.44,
+    16 spp 32.05/31.08 -> 32.54/31.68, 36 spp 33.33/32.60 -> 33.47/32.77, for 0.01-0.09 s more per
+    image (144 or 256 guide samples added at most 0.05 dB)."""
+    spp = max(1, int(spp))
+    return max(spp, min(GUIDE_SAMPLES, GUIDE_FACTOR * spp))
+
+
 def integrator_settings(preset: QualityPreset, sampler: str = "independent", samples: int | None = None) -> IntegratorSettings:
     # A unidirectional path tracer takes one diffuse and one specular continuation per camera
     # sample, so matching the preset's per-pixel ray budget needs max(camera, diffuse, specular)

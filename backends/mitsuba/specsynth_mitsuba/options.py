@@ -19,9 +19,10 @@ class MitsubaOptions(BackendOptions):
         "multijitter to a grid of isqrt(n) rows, orthogonal to the square of a prime (docs/backends/mitsuba.md).",
     )
     denoise_prefilter: Literal["none", "fast"] = Field(
-        "fast", description="How OpenImageDenoise treats the guides (albedo and normals from a pass of their own with "
-        "the image's samples and seed): 'fast' (OIDN's cleanAux off, as Cycles' 'fast') lets the filter denoise them with the image, 'none' "
-        "takes them as clean. Cycles' 'accurate' (separate guide passes) is not offered.",
+        "none", description="How OpenImageDenoise treats the guides (albedo and normals from a pass of their own with "
+        "the image's seed and 16x its samples, at most 64): 'none' takes them as clean, which they nearly are; 'fast' "
+        "(OIDN's cleanAux off, as Cycles' 'fast') lets the filter denoise them with the image, 0.5 dB worse at 1 spp "
+        "(docs/backends/mitsuba.md). Cycles' 'accurate' (separate guide passes) is not offered.",
     )
     match_cycles_bsdf: bool = Field(
         True,
