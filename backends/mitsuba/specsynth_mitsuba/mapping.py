@@ -73,7 +73,9 @@ def guide_samples(spp: int) -> int:
     true edges and texture where a few samples leave them noisy. Measured on two demo views at
     320x240 (OIDN ``high``, guides taken as clean): 1 spp 20.96 -> 27.51 dB, 4 spp 27.14 -> 29.44,
     16 spp 32.05/31.08 -> 32.54/31.68, 36 spp 33.33/32.60 -> 33.47/32.77, for 0.01-0.09 s more per
-    image (144 or 256 guide samples added at most 0.05 dB)."""
+    image (144 or 256 guide samples added at most 0.05 dB). The backend then rounds the count up
+    to one its sampler takes (``round_spp``): the same for stratified and ldsampler, 49 or 121 with
+    orthogonal."""
     spp = max(1, int(spp))
     return max(spp, min(GUIDE_SAMPLES, GUIDE_FACTOR * spp))
 
