@@ -592,10 +592,11 @@ class SpeckyRenderer:
 @given(seed=st.integers(0, 2**31))
 def test_a_denoised_images_error_and_target_are_normalised_as_against_the_converged_image(seed):
     """Normalised by the denoised image, a speck it keeps weighs less than against the converged
-    image by the square of how much brighter it is (~2x at 16 samples here): over 200 seeds the estimate read 0.42-0.49x the truth and the target
-    0.55-0.60x here (so the image stopped at ~1.3x the paper's error), as estimates read 15-23 %
-    low on real renders. The smaller of the denoised image and a 3 x 3 mean of the raw one stands
-    in for the converged image: the estimate read 0.90-1.02x the truth and the target 0.90-0.99x."""
+    image by the square of how much brighter it is (~2x at 16 samples here): over 200 seeds the
+    estimate read 0.42-0.49x the truth and the target 0.55-0.60x (so the image stopped at ~1.3x
+    the paper's error), as estimates read 15-23 % low on real renders. The smaller of the
+    denoised image and a 3 x 3 mean of the raw one stands in for the converged image: the
+    estimate read 0.90-1.02x the truth and the target 0.90-0.99x."""
     r = SpeckyRenderer(scene(seed) * 3, seed)
     n, paper = 16, 225
     a, b = r.raw(n), r.raw(n)

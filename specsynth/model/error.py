@@ -127,14 +127,6 @@ def denoised_rel_mse_map(d_a: np.ndarray, d_b: np.ndarray, a: np.ndarray, b: np.
     return (half - (d_a - d_b) ** 2 / 4) / (norm**2 + EPS)
 
 
-def box3(image: np.ndarray) -> np.ndarray:
-    """The mean of each pixel's 3 x 3 neighbourhood (edges repeated), per channel."""
-    x = np.asarray(image, np.float64)
-    p = np.pad(x, ((1, 1), (1, 1)) + ((0, 0),) * (x.ndim - 2), mode="edge")
-    h, w = x.shape[:2]
-    return sum(p[i:i + h, j:j + w] for i in range(3) for j in range(3)) / 9
-
-
 def denoised_normaliser(den_image: np.ndarray, raw_image: np.ndarray) -> np.ndarray:
     """The stand-in for the converged image in a denoised image's relative error: per pixel, the
     smaller of the denoised image and a 3 x 3 mean of the raw one. Where the denoiser leaves
@@ -143,7 +135,11 @@ def denoised_normaliser(den_image: np.ndarray, raw_image: np.ndarray) -> np.ndar
     error); the raw mean alone is so noisy that the error reads 2-3x over, and its 3 x 3 mean
     alone 25-31 % under, where it blurs edges. Their smaller one read -9 % to +4 % of the truth
     (docs/quality.md)."""
-    return np.minimum(np.asarray(den_image, np.float64), box3(raw_image))
+    from scipy.ndimage import uniform_filter
+
+    raw = np.asarray(raw_image, np.float64)
+    local_mean = uniform_filter(raw, size=(3, 3) + (1,) * (raw.ndim - 2), mode="nearest")  # edges repeated
+    return np.minimum(np.asarray(den_image, np.float64), local_mean)
 
 
 def mean_and_error(per_pixel: np.ndarray, blocks: int = 8) -> tuple[float, float]:
@@ -360,12 +356,12 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
     """(the paper preset's estimated error at this view, the convergence rate it took or None when
     not yet measured, [the raw candidate, the denoised one when the backend denoises], the error
     to plan the next step for: the estimate, or at a rate of 1 while the rate rests on close
-    counts far from the paper's, ``few_counts``). One normaliser for all of them: the raw mean, or where
-    something is denoised ``denoised_normaliser`` (the raw mean of a few samples alone is so
-    noisy that ``1 / (norm² + ε)`` of it inflates the target, measured 2-3x at 2 samples per
-    render on a noisy image, and the stop comes early). ``pairs``: every pair's
-    samples per render and the square of its two raw renders' difference (``continued``: the
-    halves' at each step, ``_paper_map``)."""
+    counts far from the paper's, ``few_counts``). One normaliser for all of them: the raw mean,
+    or where something is denoised ``denoised_normaliser`` (the raw mean of a few samples alone
+    is so noisy that ``1 / (norm² + ε)`` of it inflates the target, measured 2-3x at 2 samples
+    per render on a noisy image, and the stop comes early). ``pairs``: every pair's samples per
+    render and the square of its two raw renders' difference (``continued``: the halves' at each
+    step, ``_paper_map``)."""
     a, b = raw.halves()
     raw_image = (a + b) / 2
     den = _denoised_halves(raw, pair, took, denoise)
