@@ -424,7 +424,8 @@ def cmd_bench(args) -> int:
     rows, savings = run_bench(graph, Path(args.out), n_views=args.views, repeats=args.repeats, ref_factor=args.ref_factor,
                      scale=args.scale, backends=args.backend or None, console=console,
                      levels=tuple(args.levels.split(",")) if args.levels else ("low", "medium", "high"),
-                     ladder=args.ladder, only=tuple(x for x in (args.only or "").split(",") if x))
+                     ladder=args.ladder, only=tuple(x for x in (args.only or "").split(",") if x),
+                     ref_parts=args.ref_parts)
     t = Table(title=f"bench: {args.spec} ({args.views} view(s), scale {args.scale})")
     for col in ("backend", "setting", "samples", "seconds", "relMSE", "PSNR dB", "SSIM"):
         t.add_column(col, justify="left" if col in ("backend", "setting") else "right")
@@ -777,7 +778,11 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--out", required=True)
     p.add_argument("--views", type=int, default=2)
     p.add_argument("--repeats", type=int, default=1, help="renders per setting and view (median)")
-    p.add_argument("--ref-factor", type=int, default=4, help="reference samples = factor x high preset")
+    p.add_argument("--ref-factor", type=int, default=4,
+                   help="each part of the reference renders factor / 2 x the high preset's samples")
+    p.add_argument("--ref-parts", type=int, default=2,
+                   help="independent renders the reference is made of (at least 2; more: a steadier measure of "
+                        "one render's error where rare bright samples make most of it)")
     p.add_argument("--scale", type=float, default=0.25, help="image scale (0.25 = 160x120 for VGA specs)")
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
     p.add_argument("--levels", help="comma-separated quality levels to bench (default low,medium,high)")

@@ -314,9 +314,10 @@ def _bench_of_one_view(tmp_path):
             [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)])
 
 
-def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_rendered(tmp_path):
-    """With --ref-factor 2 each half of the reference is the paper's high preset: its row comes
-    from the two halves, with the relMSE and PSNR an independent render of it has against the
+@pytest.mark.parametrize("parts", [2, 3])
+def test_a_level_each_reference_part_rendered_is_measured_from_the_parts_as_if_rendered(tmp_path, parts):
+    """With --ref-factor 2 each part of the reference is the paper's high preset: its row comes
+    from the parts, with the relMSE and PSNR an independent render of it has against the
     reference's mean, and nothing rendered again. A stand-in renderer of known noise."""
     import dataclasses
 
@@ -329,24 +330,34 @@ def test_a_level_each_reference_half_rendered_is_measured_from_the_halves_as_if_
     plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
     refs = {}
     args = ({"name": "x"}, spec, picked, shots, refs, 1, tmp_path)
-    bench_setting(plugin, Noisy, Setting("x", "reference", "high", {"__factor__": 2}, reference=True), *args)
-    assert renders == [225, 225]
-    halves = bench_setting(plugin, Noisy, Setting("x", "high", "high", {}), *args)
-    assert renders == [225, 225] and halves.samples == 225 and math.isnan(halves.ssim)
-    refs[0] = dataclasses.replace(refs[0], halves=None)  # as with another factor: rendered
+    reference = Setting("x", "reference", "high", {"__factor__": 2, "__parts__": parts}, reference=True)
+    bench_setting(plugin, Noisy, reference, *args)
+    assert renders == [225] * parts
+    from_parts = bench_setting(plugin, Noisy, Setting("x", "high", "high", {}), *args)
+    assert renders == [225] * parts and from_parts.samples == 225 and math.isnan(from_parts.ssim)
+    refs[0] = dataclasses.replace(refs[0], parts=None)  # as with another factor: rendered
     rendered = bench_setting(plugin, Noisy, Setting("x", "high", "high", {}), *args)
-    assert renders == [225, 225, 225, 225]  # a warm-up and the timed render
-    assert halves.psnr == pytest.approx(rendered.psnr, abs=0.1)
-    assert halves.rel_mse == pytest.approx(rendered.rel_mse, rel=0.05)
-    assert halves.rel_mse == pytest.approx(np.mean(1 / 225 * mu**2 / (mu**2 + 0.01)), rel=0.05)
-    # another level's preset is not a half
+    assert renders == [225] * (parts + 2)  # a warm-up and the timed render
+    assert from_parts.psnr == pytest.approx(rendered.psnr, abs=0.1)
+    assert from_parts.rel_mse == pytest.approx(rendered.rel_mse, rel=0.05)
+    assert from_parts.rel_mse == pytest.approx(np.mean(1 / 225 * mu**2 / (mu**2 + 0.01)), rel=0.05)
+    # another level's preset is not a part
     assert bench_setting(plugin, Noisy, Setting("x", "medium", "medium", {}), *args).samples == 36
+
+
+def test_a_reference_of_fewer_than_two_parts_is_refused_before_anything_is_built(tmp_path):
+    from specsynth.run.bench import run_bench
+
+    with pytest.raises(ValueError, match="--ref-parts 1"):
+        run_bench(None, tmp_path, ref_parts=1)
+    assert not any(tmp_path.iterdir())
 
 
 def test_references_are_shared_by_denoiser_settings_and_redrawn_for_a_new_renderer_revision(tmp_path):
     """A reference is never denoised: benches of OIDN settings (another quality or prefilter in the
-    spec's backend block) read the references a first bench cached, and a backend plugin of a
-    new revision (which renders differently) draws its own."""
+    spec's backend block) read the references a first bench cached, a reference of more parts
+    renders only the parts not cached, and a backend plugin of a new revision (which renders
+    differently) draws its own."""
     import dataclasses
 
     from specsynth.run.bench import Setting, bench_setting
@@ -354,24 +365,26 @@ def test_references_are_shared_by_denoiser_settings_and_redrawn_for_a_new_render
     renders = []
     Flat = _stand_in(lambda n, seed: np.full((8, 8, 3), 0.5, np.float32), renders)
     plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
-    ref = Setting("x", "reference", "high", {"__factor__": 2}, reference=True)
 
-    def bench_reference(p, **options):
+    def bench_reference(p, parts=2, **options):
+        ref = Setting("x", "reference", "high", {"__factor__": 2, "__parts__": parts}, reference=True)
         bench_setting(p, Flat, ref, {"name": "x", **options}, spec, picked, shots, {}, 1, tmp_path)
 
     bench_reference(plugin, denoise_quality="fast")
     assert len(renders) == 2
     bench_reference(plugin, denoise_quality="balanced", denoise_prefilter="fast")
     assert len(renders) == 2
+    bench_reference(plugin, parts=3)
+    assert len(renders) == 3
     bench_reference(dataclasses.replace(plugin, revision=plugin.revision + 1))
-    assert len(renders) == 4
+    assert len(renders) == 5
 
 
 @pytest.mark.slow
 def test_bench_targeted_row_and_cached_references(tmp_path):
     """`high+targeted` (quality.control: error) has per-view estimates and targets; a second run
     into the same folder renders no reference (they are cached by content) and measures the same
-    reference-based errors; at --ref-factor 2 the plain `high` comes from the reference's halves."""
+    reference-based errors; at --ref-factor 2 the plain `high` comes from the reference's parts."""
     out = tmp_path / "bench"
     cmd = [sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
            "--views", "1", "--scale", "0.05", "--ref-factor", "2", "--backend", "cycles", "--levels", "high",
@@ -381,14 +394,14 @@ def test_bench_targeted_row_and_cached_references(tmp_path):
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env={**os.environ, "COLUMNS": "250"})
         assert r.returncode == 0, r.stdout + r.stderr
         runs.append(json.loads((out / "bench.json").read_text())["rows"])
-    assert len(list((out / "bench" / "references").glob("*.npz"))) == 1
+    assert len(list((out / "bench" / "references").glob("*.npz"))) == 2  # its two parts
     for rows in runs:
         row = next(r for r in rows if r["setting"] == "high+targeted")
         view = row["views"][0]
         assert view["error_target"] > 0 and math.isfinite(view["error_estimate"]) and view["samples"] >= 2  # an estimate may be below 0
     ref = [next(r for r in rows if r["setting"] == "reference") for rows in runs]
     assert ref[0]["seconds"] == ref[1]["seconds"]  # the cached reference's own render time
-    high = [next(r for r in rows if r["setting"] == "high") for rows in runs]  # from the reference's halves
+    high = [next(r for r in rows if r["setting"] == "high") for rows in runs]  # from the reference's parts
     same = ("seconds", "rel_mse", "psnr", "ssim", "samples", "views")  # a scene load is timed again
     assert [high[0][k] for k in same] == [high[1][k] for k in same] and high[0]["samples"] == 225 and high[0]["ssim"] is None
     assert 0 < high[0]["rel_mse"] and 0 < high[0]["psnr"] < 100

@@ -2,8 +2,9 @@
 
 For the first N accepted views of a spec, every installed PBR backend renders each quality level
 (with/without denoising and adaptive sampling where the backend has them) and a converged
-reference (``ref_factor`` x the high preset's samples, independent seed). Error is measured against
-the backend's own reference: relMSE on linear radiance, PSNR and SSIM on 8-bit sRGB.
+reference (``ref_parts`` independent renders of ``ref_factor / 2`` x the high preset's samples each).
+Error is measured against the backend's own reference: relMSE on linear radiance, PSNR and SSIM on
+8-bit sRGB.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pydantic import ValidationError
 from threadpoolctl import threadpool_limits
 
 from ..model.colour import linear_to_srgb8
-from ..model.error import extrapolated_rel_mse, rel_mse, split_rel_mse
+from ..model.error import extrapolated_rel_mse, rel_mse
 from ..model.error import taken as taken_by
 from ..model.records import ArrangementRecord, ViewRecord
 from ..plan.compiler import JobGraph
@@ -82,15 +83,15 @@ LEVELS = ("low", "medium", "high")
 
 @dataclass(frozen=True)
 class Reference:
-    """One view's converged image: the mean of two renders with independent seeds (its halves),
-    its own relative variance, and what each half rendered and took."""
+    """One view's converged image: the mean of renders with independent seeds (its parts), its
+    own relative variance, and what each part rendered and took."""
 
     linear: np.ndarray
     rgb: np.ndarray  # 8-bit sRGB of ``linear``
     variance: float
-    halves: tuple[np.ndarray, np.ndarray] | None = None
-    preset: QualityPreset | None = None  # each half's
-    half_seconds: float = 0.0  # the second half's render (the first syncs the scene)
+    parts: tuple[np.ndarray, ...] | None = None
+    preset: QualityPreset | None = None  # each part's
+    part_seconds: float = 0.0  # a part's render after the scene's first (which syncs it)
     load: float = 0.0
 
 
@@ -126,7 +127,7 @@ def bench_settings(plugin: BackendPlugin) -> BenchSettings:
 
 
 def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...] = LEVELS,
-                 ladder: bool = False) -> list[Setting]:
+                 ladder: bool = False, ref_parts: int = 2) -> list[Setting]:
     """Each quality level plain and with each of the backend's BENCH variants, then a reference.
     ``ladder``: also the level's light paths at 1, 2, 4, ... samples (fewer than its own) with
     denoising, where a denoising backend reaches the level's error for less (the calibration)."""
@@ -145,7 +146,8 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
             while n < own:
                 out.append(rung(plugin.name, level, n))
                 n *= 2
-    out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor}, reference=True))
+    out.append(Setting(plugin.name, "reference", "high", {"__factor__": ref_factor, "__parts__": ref_parts},
+                       reference=True))
     return out
 
 
@@ -295,9 +297,11 @@ def scaled_intrinsics(intr, scale: float):
 
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
-              ladder: bool = False, only: tuple[str, ...] = ()) -> list[Row]:
+              ladder: bool = False, only: tuple[str, ...] = (), ref_parts: int = 2) -> list[Row]:
     from ..plan.inputs import ArrangeInputs
 
+    if ref_parts < 2:
+        raise ValueError(f"--ref-parts {ref_parts}: a reference needs at least 2 parts (its own variance)")
     out = Path(out)
     spec = graph.spec
     intr = spec.intrinsics
@@ -309,7 +313,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         except PluginNotFound:
             continue  # reported (and skipped) below
         if only:
-            pick_settings(settings_for(plugin, ref_factor, levels, ladder), only, plugin.capabilities.denoise)
+            pick_settings(settings_for(plugin, ref_factor, levels, ladder, ref_parts), only, plugin.capabilities.denoise)
         base_options(spec.backend, plugin)
     picked, cams = _views(graph, out, n_views)
     if not picked:
@@ -329,7 +333,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         with threadpool_limits(limits=1, user_api="blas"):
             shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small), spec.objects.materials)
             refs: dict[int, Reference] = {}
-            settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder), only, plugin.capabilities.denoise)
+            settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder, ref_parts), only, plugin.capabilities.denoise)
             settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
             counts = (partial(plugin.sample_counts, plugin.options.model_validate(base_opts))
                       if plugin.sample_counts is not None else None)
@@ -349,7 +353,8 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             preset = spec.quality.model_copy(update={"level": f"paper_{spec.quality.paper_level}"}).resolved()
             for label, option in bench_settings(plugin).toggles:
                 savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, shots, preset, repeats))
-    write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor)
+    write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor,
+                 ref_parts=ref_parts)
     return rows, savings
 
 
@@ -388,7 +393,7 @@ def base_options(spec_backend, plugin: BackendPlugin) -> dict:
 def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
     """(the backend's options, the preset it renders, the error target of a ``+targeted`` setting
     or None) of one setting; a reference renders every ray count of the preset times its factor,
-    in two halves (backends take samples from their max)."""
+    in parts of half that each (backends take samples from their max)."""
     opts = {**base_opts, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
     preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
     if st.reference:
@@ -404,19 +409,19 @@ def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
     return options, preset, target
 
 
-REF_SEEDS = (7919, 7920)  # the reference's two halves: seeds no setting renders with
+REF_SEED = 7919  # the reference's part j renders with seed + REF_SEED + j: seeds no setting renders with
 
 
 def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec, picked, shots: Shots, refs: dict,
                   repeats: int, out: Path) -> Row:
     """Every picked view rendered with one setting, timed; its error against the reference (which
-    the reference setting, benched first, puts into ``refs``). A setting that is what each half of
-    the reference rendered is measured from the halves instead of being rendered again."""
+    the reference setting, benched first, puts into ``refs``). A setting that is what each part of
+    the reference rendered is measured from the parts instead of being rendered again."""
     from ..outputs.images import write_png
 
     options, preset, target = _setting_options(plugin, st, base_opts, spec)
-    if is_a_reference_half(st, preset, target, refs):
-        return row_from_halves(plugin.name, st, refs)
+    if is_a_reference_part(st, preset, target, refs):
+        return row_from_parts(plugin.name, st, refs)
     backend = cls(options, threads=0)
     draw = _drawer(backend, preset, target, spec.quality.clamp)
     times, errs, loads, phase_sums, views = [], [], [], {}, []
@@ -428,9 +433,9 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
         cam = shots.camera(vrec)
         if st.reference:
             refs[i] = reference(backend, options, cam, preset, seed, spec.quality.clamp, arec, out, load=loads[-1],
-                                revision=plugin.revision)
+                                revision=plugin.revision, parts=st.options.get("__parts__", 2))
             write_png(out / "bench" / f"{plugin.name}_ref_{i}.png", refs[i].rgb)
-            times.append(refs[i].half_seconds * 2)
+            times.append(refs[i].part_seconds * len(refs[i].parts))
             continue
         if i == 0:
             # Untimed: the first render of a setting compiles kernels (Dr.Jit, per sampler and
@@ -465,67 +470,96 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
                mean_samples, phases, views, statistics.median(loads))
 
 
-def is_a_reference_half(st: Setting, preset: QualityPreset, target, refs: dict) -> bool:
-    """A plain level (the spec's options, no error target) whose preset each half of every view's
+def is_a_reference_part(st: Setting, preset: QualityPreset, target, refs: dict) -> bool:
+    """A plain level (the spec's options, no error target) whose preset each part of every view's
     reference rendered: with ``--ref-factor 2`` the paper's ``high``."""
     return (not st.reference and not st.options and target is None and bool(refs)
-            and all(r.halves is not None and r.preset == preset for r in refs.values()))
+            and all(r.parts is not None and r.preset == preset for r in refs.values()))
 
 
-def row_from_halves(backend: str, st: Setting, refs: dict) -> Row:
-    """The row of a setting each half of the reference rendered, from the halves ``a`` and ``b``:
-    its relMSE is one render's, ``(a - b)^2 / 2`` normalised as every row is; its PSNR that of an
-    independent render against the reference's mean, whose 8-bit MSE is ``3/4`` of
-    ``(a8 - b8)^2`` (one render's noise plus the mean's half of it); its time the second half's
-    render. No SSIM: it has no such relation. At VGA this saves the preset's two renders (a warm-up
-    and the timed one) of minutes each."""
+def part_variance(parts, norm: np.ndarray) -> float:
+    """One part's relative variance (its relMSE as a render), estimated from independent parts:
+    the mean over every pair ``i, j`` of ``(x_i - x_j)² / 2`` over ``norm² + ε``. Where rare bright
+    samples make most of an image's error, one pair's estimate varies severalfold between pairs
+    (Cycles, a demo view, 225 samples: 3.5e-3 to 9.2e-3 over the 10 pairs of 5 renders), hence
+    ``--ref-parts``."""
+    pairs = [(i, j) for i in range(len(parts)) for j in range(i + 1, len(parts))]
+    return float(np.mean([extrapolated_rel_mse(parts[i], parts[j], 1, 1, norm=norm) for i, j in pairs]))
+
+
+def row_from_parts(backend: str, st: Setting, refs: dict) -> Row:
+    """The row of a setting each part of the reference rendered, from the K parts: its relMSE is
+    one render's (``part_variance``); its PSNR that of an independent render against the parts'
+    mean, whose 8-bit MSE is ``(1 + 1/K) / 2`` of a pair's ``(x_i8 - x_j8)^2`` (one render's
+    noise plus the mean's K-th of it); its time a part's render. No SSIM: it has no such
+    relation. At VGA this saves the preset's two renders (a warm-up and the timed one) of
+    minutes each."""
     views, psnrs = [], []
     for ref in refs.values():
-        a, b = ref.halves
-        views.append({"rel_mse": extrapolated_rel_mse(a, b, 1, 1, norm=ref.linear), "samples": ref.preset.samples})
-        mse8 = 0.75 * float(np.mean((linear_to_srgb8(a).astype(np.float64) - linear_to_srgb8(b)) ** 2))
+        k = len(ref.parts)
+        views.append({"rel_mse": part_variance(ref.parts, ref.linear), "samples": ref.preset.samples})
+        eight = [linear_to_srgb8(x).astype(np.float64) for x in ref.parts]
+        pair_mse8 = np.mean([np.mean((eight[i] - eight[j]) ** 2) for i in range(k) for j in range(i + 1, k)])
+        mse8 = (1 + 1 / k) / 2 * float(pair_mse8)
         psnrs.append(float("inf") if mse8 == 0 else 10 * np.log10(255.0**2 / mse8))
     rs = list(refs.values())
-    return Row(backend, st.label, st.level, float(np.mean([r.half_seconds for r in rs])),
+    return Row(backend, st.label, st.level, float(np.mean([r.part_seconds for r in rs])),
                float(np.mean([v["rel_mse"] for v in views])), float(np.mean(psnrs)), float("nan"),
                rs[0].preset.samples, {}, views, statistics.median(r.load for r in rs))
 
 
-REFERENCE_FORMAT = 2  # 2: the halves and the second half's time are kept
+REFERENCE_FORMAT = 3  # 3: one file per part, with its render time and whether it was the scene's first
 
 
 def reference(backend, options, cam, preset: QualityPreset, seed: int, clamp, arec, out: Path,
-              load: float = 0.0, revision: int = 0) -> Reference:
-    """A converged image of one view as two independent halves. Cached under
-    ``out/bench/references`` by everything that makes its pixels (renderer, its plugin's revision and options,
-    arrangement, camera, samples, seeds): at VGA a reference costs minutes, and a bench run again
-    into the same folder renders none it has."""
-    import hashlib
-    import json
-
+              load: float = 0.0, revision: int = 0, parts: int = 2) -> Reference:
+    """A converged image of one view as ``parts`` independent renders of ``preset``. Each part is
+    cached under ``out/bench/references`` by everything that makes its pixels (renderer, its
+    plugin's revision and options, arrangement, camera, samples, seed): at VGA a part costs
+    minutes, and a bench run again into the same folder renders none it has (with more parts,
+    only the new ones)."""
+    if parts < 2:
+        raise ValueError(f"a bench reference needs at least 2 parts (its own variance), got {parts}")
     # A reference is never denoised and renders its own samples: the options that set those do not
     # change its pixels, so benches of denoiser settings share it.
     if options.denoise or options.samples is not None:
         raise ValueError("a bench reference renders its own samples, undenoised")
-    drawn = options.model_dump(mode="json", exclude={"denoise", "denoise_quality", "denoise_prefilter", "samples"})
-    key = hashlib.sha256(json.dumps([REFERENCE_FORMAT, backend.version(), revision, drawn,
-                                     arec.to_json(), repr(cam), preset.model_dump(), seed, REF_SEEDS, clamp],
-                                    sort_keys=True, default=str).encode()).hexdigest()[:32]
-    path = out / "bench" / "references" / f"{key}.npz"
-    if path.is_file():
+    images, warm, cold = [], [], []
+    first = True  # the scene's first render syncs it (Cycles) or compiles kernels (Dr.Jit): not a part's time
+    for j in range(parts):
+        path = _part_path(backend, options, cam, preset, seed + REF_SEED + j, clamp, arec, out, revision)
+        if not path.is_file():
+            _render_part(backend, cam, preset, seed + REF_SEED + j, clamp, path, first)
+            first = False
         with np.load(path) as z:
-            a, b, seconds = z["half_a"], z["half_b"], float(z["half_seconds"])
-    else:
-        a = backend.render(cam, preset, seed + REF_SEEDS[0], clamp=clamp).linear
-        t0 = time.perf_counter()
-        b = backend.render(cam, preset, seed + REF_SEEDS[1], clamp=clamp).linear
-        seconds = time.perf_counter() - t0
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, half_a=a, half_b=b, half_seconds=seconds)
-        tmp.replace(path)
-    lin = (a + b) / 2
-    return Reference(lin, linear_to_srgb8(lin), split_rel_mse(a, b), (a, b), preset, seconds, load)
+            images.append(z["linear"])
+            (cold if bool(z["first"]) else warm).append(float(z["seconds"]))
+    lin = np.mean(images, axis=0)
+    return Reference(lin, linear_to_srgb8(lin), part_variance(images, lin) / parts, tuple(images), preset,
+                     statistics.median(warm or cold), load)
+
+
+def _part_path(backend, options, cam, preset: QualityPreset, seed: int, clamp, arec, out: Path, revision: int) -> Path:
+    """Where one part of a reference is cached: named by everything that makes its pixels."""
+    import hashlib
+    import json
+
+    drawn = options.model_dump(mode="json", exclude={"denoise", "denoise_quality", "denoise_prefilter", "samples"})
+    key = hashlib.sha256(json.dumps([REFERENCE_FORMAT, backend.version(), revision, drawn, arec.to_json(), repr(cam),
+                                     preset.model_dump(), seed, clamp],
+                                    sort_keys=True, default=str).encode()).hexdigest()[:32]
+    return out / "bench" / "references" / f"{key}.npz"
+
+
+def _render_part(backend, cam, preset: QualityPreset, seed: int, clamp, path: Path, first: bool) -> None:
+    """One part rendered, with its time and whether it was the scene's first render, written atomically."""
+    t0 = time.perf_counter()
+    image = backend.render(cam, preset, seed, clamp=clamp).linear
+    seconds = time.perf_counter() - t0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, linear=image, seconds=seconds, first=first)
+    tmp.replace(path)
 
 
 def _drawer(backend, preset: QualityPreset, target, clamp):
