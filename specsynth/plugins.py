@@ -119,6 +119,12 @@ class BackendPlugin:
     # square, so an error target that planned with n carried an image past quality.max_samples
     # (242 against 225). None: every count as asked. Cheap: no renderer is imported.
     sample_counts: Callable[[Any, int], int] | None = None
+    # The slowest fall of one render's variance with its samples that an error target assumes
+    # when it extrapolates from a few samples to the preset's (``samples^-rate``; a measured rate
+    # below it is held at it): a quasi-random sampler whose error falls faster towards the
+    # preset's samples than over its first ones, measured against references (``specsynth bench
+    # --ref-parts``), says so here. 1: independent samples.
+    sampler_rate: float = 1.0
 
     def options_for(self, options: Any, quality: Any) -> Any:
         """The spec's options with the level's calibration filled in where the spec is silent.
@@ -160,7 +166,8 @@ class BackendPlugin:
             raise ValueError(f"quality.max_samples {budget} fits no pair of renders: backend {self.name!r} renders "
                              f"at least {taken(counts, 1)} samples per pixel per render")
         return ErrorTarget(paper_samples=paper, start_samples=start, max_samples=budget, counts=counts,
-                           continues=self.capabilities.continues_samples, soft_samples=soft)
+                           continues=self.capabilities.continues_samples, soft_samples=soft,
+                           min_rate=self.sampler_rate)
 
     def load_class(self) -> type:
         mod, _, attr = self.backend.partition(":")

@@ -101,17 +101,17 @@ def rate_counts(counts) -> list[int]:
     return [n for n in counts if n >= floor]
 
 
-def convergence_rate(variances: dict[int, float]) -> float | None:
+def convergence_rate(variances: dict[int, float], floor: float = 1.0) -> float | None:
     """α in ``variance ∝ samples^-α`` from one render's mean variance at each sample count: the
-    least-squares slope of log variance on log samples over ``rate_counts``, within [1,
-    MAX_RATE]; None with fewer than two counts."""
+    least-squares slope of log variance on log samples over ``rate_counts``, within [``floor``
+    (the sampler's own, ``ErrorTarget.min_rate``), MAX_RATE]; None with fewer than two counts."""
     counts = rate_counts(n for n, v in variances.items() if v > 0)
     if len(counts) < 2:
         return None
     x = np.log(np.asarray(counts, np.float64))
     y = np.log(np.asarray([variances[n] for n in counts], np.float64))
     slope = float(np.sum((x - x.mean()) * (y - y.mean())) / np.sum((x - x.mean()) ** 2))
-    return min(MAX_RATE, max(1.0, -slope))
+    return min(MAX_RATE, max(floor, -slope))
 
 
 def denoised_rel_mse_map(d_a: np.ndarray, d_b: np.ndarray, a: np.ndarray, b: np.ndarray,
@@ -179,10 +179,16 @@ class ErrorTarget:
     # budget (``next_pair``): the default budget's first stage, the paper preset's samples. None:
     # the budget alone.
     soft_samples: int | None = None
+    # The slowest fall of one render's variance with its samples that the target assumes
+    # (BackendPlugin.sampler_rate): a measured rate below it is held at it, and it stands for the
+    # rate until one is measured.
+    min_rate: float = 1.0
 
     def __post_init__(self) -> None:
         if min(self.paper_samples, self.start_samples) < 1 or self.max_samples < 2 * self.taken(self.start_samples):
             raise ValueError(f"an error target needs at least 1 sample per render and a budget of two: {self}")
+        if not 1.0 <= self.min_rate <= MAX_RATE:
+            raise ValueError(f"an error target's min_rate must be within [1, {MAX_RATE}], got {self.min_rate}")
 
     def taken(self, n: int) -> int:
         """The samples per pixel a render asked for ``n`` takes."""
@@ -351,17 +357,17 @@ def _denoised_halves(raw: _Raw, pair: list[RenderResult] | None, took: list[int]
 
 
 def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pairs: list[tuple[int, np.ndarray]],
-                paper_samples: int, confidence: float, denoise: Denoise | None = None, continued: bool = False
-                ) -> tuple[float, float | None, list[_Candidate], float]:
+                paper_samples: int, confidence: float, denoise: Denoise | None = None, continued: bool = False,
+                min_rate: float = 1.0) -> tuple[float, float | None, list[_Candidate], float]:
     """(the paper preset's estimated error at this view, the convergence rate it took or None when
     not yet measured, [the raw candidate, the denoised one when the backend denoises], the error
-    to plan the next step for: the estimate, or at a rate of 1 while the rate rests on close
-    counts far from the paper's, ``few_counts``). One normaliser for all of them: the raw mean,
+    to plan the next step for: the estimate, or at the sampler's least rate (``min_rate``) while
+    the rate is not measured or rests on close counts far from the paper's, ``few_counts``). One normaliser for all of them: the raw mean,
     or where something is denoised ``denoised_normaliser`` (the raw mean of a few samples alone
     is so noisy that ``1 / (norm² + ε)`` of it inflates the target, measured 2-3x at 2 samples
     per render on a noisy image, and the stop comes early). ``pairs``: every pair's samples per
     render and the square of its two raw renders' difference (``continued``: the halves' at each
-    step, ``_paper_map``)."""
+    step, ``_paper_map``; ``min_rate``: ``ErrorTarget.min_rate``)."""
     a, b = raw.halves()
     raw_image = (a + b) / 2
     den = _denoised_halves(raw, pair, took, denoise)
@@ -369,7 +375,7 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
     norm = raw_image if den_image is None else denoised_normaliser(den_image, raw_image)
     norm2 = norm**2 + EPS
     raw_map = ((a - b) ** 2 / 4 / norm2).mean(axis=-1)
-    paper_map, rate = _paper_map(pairs, norm2, paper_samples, continued)
+    paper_map, rate = _paper_map(pairs, norm2, paper_samples, continued, min_rate=min_rate)
     # Continued halves: the raw estimate and the target are the same two renders' difference, so
     # their ratio has no noise; the margin is the estimate's own (truth against it), not theirs.
     out = [_candidate(raw_image, raw_map, np.zeros_like(raw_map) if continued else paper_map, confidence,
@@ -379,9 +385,9 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
         out.append(_candidate(den_image, den_map, paper_map, confidence, den[4], True))
     paper = float(paper_map.mean())
     counts = [n for n, _ in pairs]
-    if not few_counts(counts, paper_samples, continued):
+    if rate is not None and not few_counts(counts, paper_samples, continued):
         return paper, rate, out, paper
-    plan = float(_paper_map(pairs, norm2, paper_samples, alpha=1.0)[0].mean())
+    plan = float(_paper_map(pairs, norm2, paper_samples, alpha=min_rate)[0].mean())
     return paper, rate, out, max(paper, plan)
 
 
@@ -395,10 +401,12 @@ def few_counts(counts: list[int], paper_samples: int, continued: bool = False) -
 
 
 def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_samples: int,
-               continued: bool = False, alpha: float | None = None) -> tuple[np.ndarray, float | None]:
+               continued: bool = False, alpha: float | None = None, min_rate: float = 1.0
+               ) -> tuple[np.ndarray, float | None]:
     """Per pixel, the paper preset's estimated error: the variance of one render of every pair
     whose count sets the rate (``rate_counts``), scaled from its samples to the paper's at that
-    rate (1 until it is measured; ``alpha``, when given, instead), averaged with weights by
+    rate (at least ``min_rate``, which stands for it until it is measured; ``alpha``, when given,
+    instead), averaged with weights by
     samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the
     last is the least extrapolated, and the rate is the one over the last two counts (a
     quasi-random sequence's first samples converge faster than its later ones: measured on
@@ -409,8 +417,8 @@ def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_sam
     by_count: dict[int, list[float]] = {}
     for n, m in maps:
         by_count.setdefault(n, []).append(float(m.mean()))
-    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()})
-    alpha = alpha if alpha is not None else 1.0 if rate is None else rate
+    rate = convergence_rate({n: float(np.mean(v)) for n, v in by_count.items()}, floor=min_rate)
+    alpha = alpha if alpha is not None else min_rate if rate is None else rate
     if continued:
         maps = maps[-1:]
     elif rate is not None:  # the pairs whose counts set the rate: the others converge otherwise
@@ -507,8 +515,9 @@ class _Progress:
         # of its own (measured on Cycles: samples 2-18 denoised had 1.4x the error of a 16-sample
         # render): no last-pair way.
         pair = None if self.continues else pair
-        self.paper, self.rate, self.candidates, self.plan = _candidates(self.raw, pair, took, self.pairs, target.paper_samples,
-                                                             target.confidence, denoise, self.continues)
+        self.paper, self.rate, self.candidates, self.plan = _candidates(
+            self.raw, pair, took, self.pairs, target.paper_samples, target.confidence, denoise, self.continues,
+            min_rate=target.min_rate)
         # The denoised way's history: its pairs alone, or every step when it denoises all samples spent.
         if len(self.candidates) > 1 and (den_step or self.accumulated()):
             self.history.append((self.candidates[1].samples, self.candidates[1].upper))

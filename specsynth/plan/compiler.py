@@ -327,8 +327,10 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
              "render": {"backend": backend, "products": product_fingerprints(inputs.render),
                         **texture_hashes, **_input_folders(spec, loaded)}}
     if spec.quality.control == "error":  # only these renders are the error control's
-        way = ", continued halves" if backend_plugin(spec.backend.name).capabilities.continues_samples else ""
-        extra["render"]["error_control"] = f"revision {error_control.REVISION}{way}"
+        plugin = backend_plugin(spec.backend.name)
+        way = ", continued halves" if plugin.capabilities.continues_samples else ""
+        rate = f", sampler rate {plugin.sampler_rate}" if plugin.sampler_rate != 1.0 else ""
+        extra["render"]["error_control"] = f"revision {error_control.REVISION}{way}{rate}"
     # A stage's key: the digest of its whole inputs model, and what it reads besides the spec.
     stage_digests = {s: keys.stage_digest(s, {"inputs": keys.digest(getattr(inputs, s).model_dump(mode="json")),
                                               **extra[s]}) for s in STAGES}

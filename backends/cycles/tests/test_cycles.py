@@ -13,6 +13,7 @@ import pytest
 
 from specsynth.assets.meshio import MeshData, write_mesh
 from specsynth.model.ir import CameraIR, LightIR, MaterialIR, MeshInstance, RenderScene, WorldIR, as_tuple
+from specsynth.plugins import backend_plugin
 from specsynth.spec.models import PAPER_PRESETS, QualityPreset
 from specsynth_cycles.options import CyclesOptions
 from specsynth_cycles.settings import blender_intrinsics, path_settings, preset_samples, project
@@ -743,7 +744,8 @@ def test_high_under_an_error_target_lands_on_the_paper_error(backend, meshes, ma
         paper = rel_mse(backend.render(cam, high, 3).linear, ref) - ref_var
         backend.options = opts.model_copy(update={"denoise": True})
         done = render_to_target(lambda n, i, offset=0: backend.render(cam, q(n), 100 + i, sample_offset=offset),
-                                ErrorTarget(225, 2, 900, continues=continues), linear_to_srgb8)
+                                ErrorTarget(225, 2, 900, continues=continues,
+                                            min_rate=backend_plugin("cycles").sampler_rate), linear_to_srgb8)
     finally:
         backend.options = opts
     truth = rel_mse(done.result.linear, ref) - ref_var
