@@ -126,6 +126,13 @@ class BackendPlugin:
     # --ref-parts``), says so here. 1: independent samples.
     sampler_rate: float = 1.0
 
+    def __post_init__(self) -> None:
+        from .model.error import MAX_RATE
+
+        if not 1.0 <= self.sampler_rate <= MAX_RATE:
+            raise ValueError(f"backend plugin {self.name!r}: sampler_rate must be within [1, {MAX_RATE}], "
+                             f"got {self.sampler_rate}")
+
     def options_for(self, options: Any, quality: Any) -> Any:
         """The spec's options with the level's calibration filled in where the spec is silent.
 

@@ -349,8 +349,40 @@ def test_a_reference_of_fewer_than_two_parts_is_refused_before_anything_is_built
     from specsynth.run.bench import run_bench
 
     with pytest.raises(ValueError, match="--ref-parts 1"):
-        run_bench(None, tmp_path, ref_parts=1)
-    assert not any(tmp_path.iterdir())
+        run_bench(None, tmp_path, ref_parts=1)  # before the graph is read: nothing is built
+
+
+def test_a_parts_time_is_a_render_after_the_scenes_first(tmp_path):
+    """The first render after a scene's load syncs it (Cycles) or compiles kernels (Dr.Jit): a
+    reference's part time leaves it out, also when more parts are added to cached ones in a later
+    run (the first new part is that run's first render)."""
+    from specsynth.run.bench import Setting, bench_setting
+
+    renders = []
+    Flat = _stand_in(lambda n, seed: np.full((8, 8, 3), 0.5, np.float32), renders)
+    plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
+
+    def reference(parts):
+        refs = {}
+        ref = Setting("x", "reference", "high", {"__factor__": 2, "__parts__": parts}, reference=True)
+        bench_setting(plugin, Flat, ref, {"name": "x"}, spec, picked, shots, refs, 1, tmp_path)
+        return refs[0]
+
+    def flags():
+        out = {}
+        for f in (tmp_path / "bench" / "references").glob("*.npz"):
+            with np.load(f) as z:
+                out[f.name] = (bool(z["first"]), float(z["seconds"]))
+        return out
+
+    two = reference(2)
+    first_run = flags()
+    assert sorted(first for first, _ in first_run.values()) == [False, True]
+    assert two.part_seconds == next(s for first, s in first_run.values() if not first)
+    three = reference(3)
+    added = {k: v for k, v in flags().items() if k not in first_run}
+    assert len(renders) == 3 and [first for first, _ in added.values()] == [True]
+    assert three.part_seconds == two.part_seconds  # the one warm part still
 
 
 def test_references_are_shared_by_denoiser_settings_and_redrawn_for_a_new_renderer_revision(tmp_path):

@@ -249,10 +249,15 @@ def test_a_sampler_rate_holds_the_target_where_the_first_samples_fall_slower(kne
 
 
 def test_an_error_targets_least_rate_is_within_the_rates_it_allows():
+    from specsynth.plugins import BackendPlugin
+    from specsynth.spec.models import BackendOptions
+
     assert ErrorTarget(225, 2, 450, min_rate=MAX_RATE).min_rate == MAX_RATE
     for bad in (0.9, MAX_RATE + 0.1):
         with pytest.raises(ValueError, match="min_rate"):
             ErrorTarget(225, 2, 450, min_rate=bad)
+        with pytest.raises(ValueError, match="backend plugin 'x': sampler_rate"):
+            BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sampler_rate=bad)
 
 
 class ContinuingRenderer:

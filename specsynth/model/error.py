@@ -362,8 +362,9 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
     """(the paper preset's estimated error at this view, the convergence rate it took or None when
     not yet measured, [the raw candidate, the denoised one when the backend denoises], the error
     to plan the next step for: the estimate, or at the sampler's least rate (``min_rate``) while
-    the rate is not measured or rests on close counts far from the paper's, ``few_counts``). One normaliser for all of them: the raw mean,
-    or where something is denoised ``denoised_normaliser`` (the raw mean of a few samples alone
+    the rate is not measured or rests on close counts far from the paper's, ``few_counts``). One
+    normaliser for all of them: the raw mean, or where something is denoised
+    ``denoised_normaliser`` (the raw mean of a few samples alone
     is so noisy that ``1 / (norm² + ε)`` of it inflates the target, measured 2-3x at 2 samples
     per render on a noisy image, and the stop comes early). ``pairs``: every pair's samples per
     render and the square of its two raw renders' difference (``continued``: the halves' at each

@@ -725,9 +725,10 @@ def test_high_under_an_error_target_lands_on_the_paper_error(backend, meshes, ma
     """Two scenes of very different noise at `high` with quality.control: error: each image's true
     error (against a converged reference, less the reference's own variance) is within 10 % of
     its target, the paper preset's error extrapolated from the image's own noise at the rate it
-    falls with the samples, measured on the image, for at most about the paper's 225 samples.
-    (Measured: the target is 0.86x Cycles' own 225-sample render's error on the lit scene, rate
-    1.21, and 1.28x on the noisy one, rate 1, whose fireflies make one render's error a noisy number.)
+    falls with the samples, measured on the image (at least the plugin's ``sampler_rate``), for at
+    most about the paper's 225 samples. (Measured before the plugin had a ``sampler_rate``: the
+    target was 0.86x Cycles' own 225-sample render's error on the lit scene, rate 1.21, and 1.28x
+    on the noisy one, rate 1, whose fireflies make one render's error a noisy number.)
     ``continued``: each half extends its own sample sequence (sample_offset), as builds render."""
     from specsynth.model.colour import linear_to_srgb8
     from specsynth.model.error import ErrorTarget, rel_mse, render_to_target, split_rel_mse
