@@ -364,9 +364,9 @@ def _candidates(raw: _Raw, pair: list[RenderResult] | None, took: list[int], pai
     to plan the next step for: the estimate, or at the sampler's least rate (``min_rate``) while
     the rate is not measured or rests on close counts far from the paper's, ``few_counts``). One
     normaliser for all of them: the raw mean, or where something is denoised
-    ``denoised_normaliser`` (the raw mean of a few samples alone
-    is so noisy that ``1 / (norm² + ε)`` of it inflates the target, measured 2-3x at 2 samples
-    per render on a noisy image, and the stop comes early). ``pairs``: every pair's samples per
+    ``denoised_normaliser`` (the raw mean of a few samples alone is so noisy that
+    ``1 / (norm² + ε)`` of it inflates the target, measured 2-3x at 2 samples per render on a
+    noisy image, and the stop comes early). ``pairs``: every pair's samples per
     render and the square of its two raw renders' difference (``continued``: the halves' at each
     step, ``_paper_map``; ``min_rate``: ``ErrorTarget.min_rate``)."""
     a, b = raw.halves()
@@ -407,8 +407,7 @@ def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_sam
     """Per pixel, the paper preset's estimated error: the variance of one render of every pair
     whose count sets the rate (``rate_counts``), scaled from its samples to the paper's at that
     rate (at least ``min_rate``, which stands for it until it is measured; ``alpha``, when given,
-    instead), averaged with weights by
-    samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the
+    instead), averaged with weights by samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the
     last is the least extrapolated, and the rate is the one over the last two counts (a
     quasi-random sequence's first samples converge faster than its later ones: measured on
     Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""

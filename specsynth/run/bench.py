@@ -393,7 +393,7 @@ def base_options(spec_backend, plugin: BackendPlugin) -> dict:
 def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
     """(the backend's options, the preset it renders, the error target of a ``+targeted`` setting
     or None) of one setting; a reference renders every ray count of the preset times its factor,
-    in parts of half that each (backends take samples from their max)."""
+    each of its parts half that (backends take samples from their max)."""
     opts = {**base_opts, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
     preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
     if st.reference:
