@@ -30,10 +30,10 @@ PLUGIN = BackendPlugin(
     cost=(1.4, 0.458),  # a bare VGA frame on 2 cores: 1.40 s + 0.458 s per sample (benchmarks/bench_cycles.py)
     checks="specsynth_cycles.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/cycles  (needs the bpy==5.0.1 wheel)",
-    # `specsynth bench specs/demo.yaml --scale 0.5 --views 2 --ref-factor 2 --levels medium,high --ladder`
-    # (docs/quality.md): paper medium 28.64 dB, 1 spp + OIDN 31.50 dB in 0.72 s against 8.58 s;
-    # paper high 35.12 dB in ~41 s, 4 spp + OIDN 35.27 dB in 1.10 s. Low: the paper's 1 spp is the cheapest.
-    calibrated={"medium": {"samples": 1, "denoise": True}, "high": {"samples": 4, "denoise": True}},
+    # At full VGA on the demo's first two views (docs/quality.md, "The calibration run"): paper
+    # medium 29.69 dB in 50 s, 4 spp + OIDN 30.70 dB in 6.4 s (3 spp: 29.03); paper high 35.50 dB
+    # in 336 s, 24 spp + OIDN 35.59 dB in 33 s (16 spp: 35.03). Low: the paper's 1 spp is the cheapest.
+    calibrated={"medium": {"samples": 4, "denoise": True}, "high": {"samples": 24, "denoise": True}},
     # Tabulated Sobol: one render's error falls faster towards the preset's 225 samples than over
     # its first few (continued halves: 1.2 from 16 to 225; on the two 320x240 bench views, pairs of
     # 2-6 samples fell at 1 or less, and targets from them at a rate of 1 were 1.87x and 1.50x the

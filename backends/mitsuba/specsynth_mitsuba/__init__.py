@@ -38,10 +38,10 @@ PLUGIN = BackendPlugin(
     cost=(0.11, 0.122),
     checks="specsynth_mitsuba.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
-    # `specsynth bench specs/demo.yaml --scale 0.5 --views 2 --ref-factor 2 --levels medium,high --ladder`
-    # (docs/quality.md): paper medium 25.05 dB in 1.92 s, 1 spp + OIDN 29.59 dB in 0.28 s; paper high
-    # 32.42 dB in 13.9 s, 9 spp + OIDN 34.12 dB in 1.33 s (4 spp + OIDN: 29.1 dB, below 1 spp's 30.7).
-    calibrated={"medium": {"samples": 1, "denoise": True}, "high": {"samples": 9, "denoise": True}},
+    # At full VGA on the demo's first two views (docs/quality.md, "The calibration run"): paper
+    # medium 25.59 dB in 24 s, 1 spp + OIDN 28.87 dB in 3.0 s; paper high 33.44 dB in 167 s, 16 spp
+    # + OIDN 33.95 dB in 15 s (9 spp: 32.93). The stratified sampler renders squares only.
+    calibrated={"medium": {"samples": 1, "denoise": True}, "high": {"samples": 16, "denoise": True}},
     sample_counts=samples_taken,  # quality.control: error plans with the counts the sampler takes
 )
 
