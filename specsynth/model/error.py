@@ -407,10 +407,10 @@ def _paper_map(pairs: list[tuple[int, np.ndarray]], norm2: np.ndarray, paper_sam
     """Per pixel, the paper preset's estimated error: the variance of one render of every pair
     whose count sets the rate (``rate_counts``), scaled from its samples to the paper's at that
     rate (at least ``min_rate``, which stands for it until it is measured; ``alpha``, when given,
-    instead), averaged with weights by samples; and the rate. ``continued``: the pairs are the same two renders at each step, so the
-    last is the least extrapolated, and the rate is the one over the last two counts (a
-    quasi-random sequence's first samples converge faster than its later ones: measured on
-    Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""
+    instead), averaged with weights by samples; and the rate. ``continued``: the pairs are the
+    same two renders at each step, so the last is the least extrapolated, and the rate is the
+    one over the last two counts (a quasi-random sequence's first samples converge faster than
+    its later ones: measured on Cycles, 1.50 from 2 to 8 samples where 16 to 225 fall at 1.2)."""
     if continued:
         pairs = pairs[-2:]
     maps = [(n, (sq / 2 / norm2).mean(axis=-1)) for n, sq in pairs]
