@@ -50,7 +50,7 @@ bench: install
 bench-vga: install
 	$(BIN)/specsynth bench specs/demo.yaml --out bench-out/vga --views 1 --scale 1.0 --ref-factor 2 \
 		--backend cycles --backend mitsuba --levels high \
-		--only high,high+denoise@4,high+denoise@9,high+denoise@16,high+denoise@48 \
+		--only high,high+denoise@4,high+denoise@9,high+denoise@16,high+denoise@4x2 \
 		--set backend.denoise_quality=high --set backend.denoise_prefilter=none
 
 schema: install

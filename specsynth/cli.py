@@ -790,7 +790,7 @@ def _dataset_commands(sub) -> None:
                    help="also each level at 1, 2, 4, ... samples with denoising: the cheapest that reaches its error; "
                         "then rungs between the last short of it and the first reaching it, until they are 25 %% apart")
     p.add_argument("--only", help="comma-separated setting labels to bench (e.g. high,high+calibrated,high+denoise@2; "
-                   "any high+denoise@N on a backend that denoises); "
+                   "any high+denoise@N on a backend that denoises, high+denoise@NxF at F times the resolution); "
                    "the reference always runs")
     p.set_defaults(fn=cmd_bench)
 

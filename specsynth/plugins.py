@@ -140,11 +140,15 @@ class BackendPlugin:
         that turns denoising off gets the paper preset's own samples instead of a noisy image.
         Under ``quality.control: error`` every render takes the samples the error target asks for
         (the preset's, set per render): no ``samples`` here, the spec's own start the image
-        (``error_target``)."""
+        (``error_target``), and no supersampling. A calibrated ``supersample`` goes with the
+        calibrated ``samples``: a spec with a count of its own renders at its own resolution."""
         cal = dict(self.calibrated.get(quality.paper_level) or {}) if quality.calibrated else {}
         update = {}
+        if "samples" in options.model_fields_set:  # a count of the spec's own is at its own resolution
+            cal.pop("supersample", None)
         if getattr(quality, "control", "samples") == "error":
             cal.pop("samples", None)
+            cal.pop("supersample", None)  # an error target renders an image at its own resolution
             if options.samples is not None:
                 update["samples"] = None
         if cal and not (cal.get("denoise") and "denoise" in options.model_fields_set and not options.denoise):
@@ -154,8 +158,9 @@ class BackendPlugin:
     def error_target(self, options: Any, quality: Any):
         """``quality.control: error``: the paper preset's samples (whose error is the target), the
         samples per render of the first pair (the spec's own ``options``' samples, else half the
-        level's calibrated samples: the first pair costs what one calibrated render does, each as
-        the renderer takes it) and the image's budget: ``quality.max_samples``, else ``BUDGET_FACTOR``
+        level's calibrated samples, times the pixels a calibrated supersampled render traces per
+        pixel of the image: the first pair costs what one calibrated render does, each as the
+        renderer takes it) and the image's budget: ``quality.max_samples``, else ``BUDGET_FACTOR``
         times the preset's samples, spent past those only by an image not at its target within
         them (``ErrorTarget.soft_samples``). ``quality.max_samples`` is a bound, never
         raised: the first pair is made smaller to fit it, and a budget no pair of the renderer's
@@ -165,7 +170,8 @@ class BackendPlugin:
         paper = quality.resolved().samples
         cal = self.calibrated.get(quality.paper_level, {}) if quality.calibrated else {}
         counts = partial(self.sample_counts, options) if self.sample_counts is not None else None
-        want = options.samples or max(1, int(cal.get("samples", 2)) // 2)
+        # a calibrated render's samples at its own resolution: a supersampled one traces f^2 as many
+        want = options.samples or max(1, int(cal.get("samples", 2)) * int(cal.get("supersample", 1)) ** 2 // 2)
         budget = quality.max_samples or max(BUDGET_FACTOR * paper, 2 * taken(counts, want))
         soft = None if quality.max_samples else paper  # the default budget: the preset's samples first
         start = per_render(counts, want, budget)

@@ -101,6 +101,12 @@ def test_only_picks_the_named_settings_and_always_the_reference():
     assert [(s.label, s.options) for s in picked[:2]] == [("high", {}), ("high+denoise@20", {"denoise": True, "samples": 20})]
     with pytest.raises(ValueError, match=r"no setting 'low\+denoise@20'"):
         pick_settings(every, ("low+denoise@20",), denoise=True)
+    # and at a multiple of the resolution: N samples per pixel of the larger image (backend.supersample)
+    picked = pick_settings(every, ("high+denoise@8x2",), denoise=True)
+    assert (picked[0].label, picked[0].options) == ("high+denoise@8x2", {"denoise": True, "samples": 8, "supersample": 2})
+    for bad in ("high+denoise@8x5", "high+denoise@8x1", "high+denoise@8x", "high+denoise@x2"):
+        with pytest.raises(ValueError, match="no setting"):
+            pick_settings(every, (bad,), denoise=True)
 
 
 def _rows(psnr_by_samples: dict[int, float], taken=None) -> list:

@@ -847,6 +847,48 @@ def test_error_control_needs_a_backend_with_sampling_noise(tmp_path):
     assert "quality.control" in str(e.value) and "t.yaml:13:" in str(e.value)
 
 
+def test_error_control_refuses_supersampling_at_its_line(tmp_path):
+    """An error target measures an image at its own resolution: ``backend.supersample`` beside it
+    is a located error before anything renders, not a silent choice of one."""
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import SpecError, load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles\n  supersample: 2"))
+    with pytest.raises(SpecError) as e:
+        compile_spec(load_spec(f))
+    assert "backend.supersample" in str(e.value) and "t.yaml:16:" in str(e.value)
+    assert compile_spec(load_spec(f, ["quality.control=samples"])).n_arrangements >= 1
+
+
+def test_renders_are_keyed_by_the_calibration_of_their_level(tmp_path, monkeypatch):
+    """A level's calibrated samples (and supersampling) are part of its renders' key: a build made
+    with another calibration renders again; a level no calibration touches keeps its keys."""
+    import dataclasses
+
+    import specsynth.plan.compiler as compiler
+    from specsynth.plan.compiler import compile_spec
+    from specsynth.spec.yamlio import load_spec
+
+    f = tmp_path / "t.yaml"
+    f.write_text(TINY.replace("BACKEND", "cycles"))
+    high, low = (["quality.control=samples", f"quality.level={lv}"] for lv in ("high", "low"))
+    before = {lv: compile_spec(load_spec(f, o)) for lv, o in (("high", high), ("low", low))}
+    assert "supersample" in before["high"].stage_inputs["render"]["calibration"]
+    real = compiler.backend_plugin
+
+    def recalibrated(name):
+        plugin = real(name)
+        return dataclasses.replace(plugin, calibrated={**plugin.calibrated, "high": {"samples": 7, "denoise": True}})
+
+    monkeypatch.setattr(compiler, "backend_plugin", recalibrated)
+    after = {lv: compile_spec(load_spec(f, o)) for lv, o in (("high", high), ("low", low))}
+    assert after["high"].stage_digests["render"] != before["high"].stage_digests["render"]
+    assert after["high"].stage_digests["view"] == before["high"].stage_digests["view"]
+    assert after["low"].stage_digests == before["low"].stage_digests
+    assert "calibration" not in after["low"].stage_inputs["render"]
+
+
 def test_targeted_renders_are_keyed_by_the_error_controls_revision(tmp_path, monkeypatch):
     """A build's cached image made by earlier error-control code is rendered again, never read
     (its samples, record and stereo eyes were that code's); under control: samples, and for the

@@ -186,6 +186,16 @@ class CameraIR:
         t = np.asarray(self.t_w2c, dtype=np.float64) + np.asarray(self.R_w2c) @ np.asarray(offset, dtype=np.float64)
         return replace(self, t_w2c=as_tuple(t))
 
+    def scaled(self, factor: int) -> "CameraIR":
+        """The same view at ``factor`` times the resolution: each pixel split into factor x factor
+        whose mean is the pixel (OpenCV's pixel centres at integers: ``c' = (c + 0.5) f - 0.5``)."""
+        if factor < 1 or factor != int(factor):
+            raise ValueError(f"a camera is scaled by a whole factor of at least 1, got {factor}")
+        K = self.K_array.copy()
+        K[:2, :3] *= factor
+        K[:2, 2] += 0.5 * factor - 0.5
+        return replace(self, K=as_tuple(K), width=self.width * factor, height=self.height * factor)
+
     @property
     def K_array(self) -> np.ndarray:
         return np.asarray(self.K, dtype=np.float64)

@@ -103,7 +103,7 @@ def check_room_categories(ref, i: int, loaded: LoadedSpec) -> list:
 
 def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
     """Located problems for a camera effect the spec's backend cannot render, or an error target it
-    cannot keep (no sampling noise; a budget no pair of its sample counts fits)."""
+    cannot keep (no sampling noise; a budget no pair of its sample counts fits; supersampling)."""
     problems = []
     plugin = backend_plugin(spec.backend.name)
     caps = plugin.capabilities
@@ -115,6 +115,9 @@ def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
     if spec.quality.control == "error" and not caps.sampling_noise:
         problems.append(loaded.locate("quality.control", f"backend {spec.backend.name!r} has no sampling noise to "
                                       "control (its plugin does not declare sampling_noise); use control: samples"))
+    elif spec.quality.control == "error" and spec.backend.supersample > 1:
+        problems.append(loaded.locate("backend.supersample", "an error target renders each image at its own "
+                                      "resolution; remove backend.supersample or use quality.control: samples"))
     elif spec.quality.control == "error":
         try:
             plugin.error_target(spec.backend, spec.quality)
@@ -149,6 +152,16 @@ class Job:
     def seed(self) -> int:
         # Derived on demand: planning a million jobs never needs their seeds.
         return seeds.job_seed(self.root_seed, self.id)
+
+
+def calibration_applied(spec: DatasetSpec) -> str:
+    """What the backend's calibration of the spec's level sets that the spec does not (its option
+    values, canonical JSON), or "": a render key holds it, so a build made with an earlier
+    calibration of its level renders again instead of reading images of other samples."""
+    options = spec.backend
+    applied = backend_plugin(options.name).options_for(options, spec.quality)
+    changed = {k: getattr(applied, k) for k in type(applied).model_fields if getattr(applied, k) != getattr(options, k)}
+    return keys.canonical_json(changed).decode() if changed else ""
 
 
 def backend_fingerprint(name: str) -> str:
@@ -326,6 +339,8 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
     extra = {"arrange": dict(asset_hashes), "view": {"annotator": f"pyrender {dist_version('pyrender')}"},
              "render": {"backend": backend, "products": product_fingerprints(inputs.render),
                         **texture_hashes, **_input_folders(spec, loaded)}}
+    if calibration := calibration_applied(spec):
+        extra["render"]["calibration"] = calibration
     if spec.quality.control == "error":  # only these renders are the error control's
         plugin = backend_plugin(spec.backend.name)
         way = ", continued halves" if plugin.capabilities.continues_samples else ""

@@ -31,7 +31,7 @@ from ..plan.compiler import JobGraph
 from ..plugins import BackendPlugin, PluginNotFound, backend_plugin, installed_backend_plugins
 from ..spec.models import PAPER_PRESETS, QualityPreset
 from .build import build
-from .render import draw_to_target
+from .render import draw_to_target, render_at
 from .store import Store, write_json
 from .worker import Materials, Optics, World
 
@@ -151,22 +151,35 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
     return out
 
 
-def rung(plugin_name: str, level: str, samples: int) -> Setting:
-    """The level's light paths at ``samples`` with denoising: one rung of the ladder."""
-    return Setting(plugin_name, f"{level}+denoise@{samples}", level, {"denoise": True, "samples": samples})
+def rung(plugin_name: str, level: str, samples: int, supersample: int = 1) -> Setting:
+    """The level's light paths at ``samples`` with denoising (at ``supersample`` times the
+    resolution: ``<level>+denoise@NxF``): one rung of the ladder."""
+    label = f"{level}+denoise@{samples}" + (f"x{supersample}" if supersample > 1 else "")
+    options = {"denoise": True, "samples": samples, **({"supersample": supersample} if supersample > 1 else {})}
+    return Setting(plugin_name, label, level, options)
+
+
+def _rung_of(label: str, level: str) -> tuple[int, int] | None:
+    """(N, F) of a label ``<level>+denoise@N`` (F 1) or ``<level>+denoise@NxF`` (N >= 1, F 2-4), else None."""
+    head, _, tail = label.partition("+denoise@")
+    n, x, f = tail.partition("x")
+    if head != level or not n.isdigit() or int(n) < 1 or (x and not (f.isdigit() and 2 <= int(f) <= 4)):
+        return None
+    return int(n), int(f or 1)
 
 
 def _rung_samples(label: str, level: str) -> int | None:
-    """N of a label ``<level>+denoise@N`` (N >= 1), else None."""
-    head, _, n = label.partition("+denoise@")
-    return int(n) if head == level and n.isdigit() and int(n) >= 1 else None
+    """N of a label ``<level>+denoise@N`` (N >= 1, at the image's own resolution), else None."""
+    found = _rung_of(label, level)
+    return found[0] if found and found[1] == 1 else None
 
 
 def pick_settings(settings: list[Setting], only: tuple[str, ...], denoise: bool = False) -> list[Setting]:
     """The settings labelled in ``only`` (all when empty), each once, and always the reference every
     row needs, last. A full ladder at VGA costs hours on a CPU; this benches the rows that answer one
     question. With ``denoise`` (the backend denoises) any rung ``<level>+denoise@N`` may be asked
-    for, not only the ladder's powers of two."""
+    for, not only the ladder's powers of two, and ``<level>+denoise@NxF``: N samples per pixel at F
+    times the resolution (``backend.supersample``)."""
     if not only:
         return settings
     ref = [st for st in settings if st.reference]
@@ -174,8 +187,8 @@ def pick_settings(settings: list[Setting], only: tuple[str, ...], denoise: bool 
     levels = {st.level for st in by_label.values()}
     for x in only:
         for lv in levels if denoise and x not in by_label else ():
-            if n := _rung_samples(x, lv):
-                by_label[x] = rung(ref[0].backend, lv, n)
+            if found := _rung_of(x, lv):
+                by_label[x] = rung(ref[0].backend, lv, *found)
     unknown = [x for x in only if x not in by_label]
     if unknown:
         labels = [st.label for st in settings if not st.reference]
@@ -376,11 +389,12 @@ SHARED_OPTIONS = ("denoise_quality", "denoise_prefilter")  # BackendOptions fiel
 
 def base_options(spec_backend, plugin: BackendPlugin) -> dict:
     """The options a backend is benched with: the spec's own, minus what the bench varies (denoise,
-    samples); for another backend than the spec's, the options every backend takes that the spec
-    sets (``--set backend.denoise_prefilter=none`` reaches every benched backend, as a spec swapped
-    by ``backend.name`` alone would render). A value the backend does not take is a ValueError."""
+    samples, supersample); for another backend than the spec's, the options every backend takes
+    that the spec sets (``--set backend.denoise_prefilter=none`` reaches every benched backend, as a
+    spec swapped by ``backend.name`` alone would render). A value the backend does not take is a
+    ValueError."""
     if spec_backend.name == plugin.name:
-        return spec_backend.model_dump(exclude={"denoise", "samples"})
+        return spec_backend.model_dump(exclude={"denoise", "samples", "supersample"})
     opts = {"name": plugin.name, **{k: getattr(spec_backend, k) for k in SHARED_OPTIONS if k in spec_backend.model_fields_set}}
     try:
         plugin.options.model_validate(opts)
@@ -423,7 +437,7 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
     if is_a_reference_part(st, preset, target, refs):
         return row_from_parts(plugin.name, st, refs)
     backend = cls(options, threads=0)
-    draw = _drawer(backend, preset, target, spec.quality.clamp)
+    draw = _drawer(backend, preset, target, spec.quality.clamp, options.supersample)
     times, errs, loads, phase_sums, views = [], [], [], {}, []
     samples = 0
     for i, (arec, vrec, seed) in enumerate(picked):
@@ -522,8 +536,8 @@ def reference(backend, options, cam, preset: QualityPreset, seed: int, clamp, ar
         raise ValueError(f"a bench reference needs at least 2 parts (its own variance), got {parts}")
     # A reference is never denoised and renders its own samples: the options that set those do not
     # change its pixels, so benches of denoiser settings share it.
-    if options.denoise or options.samples is not None:
-        raise ValueError("a bench reference renders its own samples, undenoised")
+    if options.denoise or options.samples is not None or options.supersample != 1:
+        raise ValueError("a bench reference renders its own samples at its own resolution, undenoised")
     images, warm, cold = [], [], []
     first = True  # the scene's first render syncs it (Cycles) or compiles kernels (Dr.Jit): not a part's time
     for j in range(parts):
@@ -544,7 +558,8 @@ def _part_path(backend, options, cam, preset: QualityPreset, seed: int, clamp, a
     import hashlib
     import json
 
-    drawn = options.model_dump(mode="json", exclude={"denoise", "denoise_quality", "denoise_prefilter", "samples"})
+    drawn = options.model_dump(mode="json", exclude={"denoise", "denoise_quality", "denoise_prefilter", "samples",
+                                                     "supersample"})
     key = hashlib.sha256(json.dumps([REFERENCE_FORMAT, backend.version(), revision, drawn, arec.to_json(), repr(cam),
                                      preset.model_dump(), seed, clamp],
                                     sort_keys=True, default=str).encode()).hexdigest()[:32]
@@ -562,11 +577,12 @@ def _render_part(backend, cam, preset: QualityPreset, seed: int, clamp, path: Pa
     tmp.replace(path)
 
 
-def _drawer(backend, preset: QualityPreset, target, clamp):
-    """(camera, seed) -> RenderResult: one render of ``preset``, or renders up to an error target
-    as a build makes them (the same seeds)."""
+def _drawer(backend, preset: QualityPreset, target, clamp, supersample: int = 1):
+    """(camera, seed) -> RenderResult: one render of ``preset`` (at ``supersample`` times the
+    resolution, brought back to it), or renders up to an error target as a build makes them (the
+    same seeds)."""
     if target is None:
-        return lambda cam, seed: backend.render(cam, preset, seed, clamp=clamp)
+        return lambda cam, seed: render_at(backend, cam, preset, seed, clamp, supersample)
     return lambda cam, seed: draw_to_target(backend, [cam], preset, seed, target, clamp)[0][0]
 
 

@@ -17,6 +17,7 @@ from ..model.colour import check_finite, linear_to_srgb8
 from ..model.error import ErrorTarget, render_group_to_target
 from ..model.ir import CameraIR, RenderResult, RenderScene
 from ..model.records import ArrangementRecord, ImageRecord, ViewRecord
+from ..model.supersample import downsampled
 from ..output_api import ViewProduct, active_products
 from ..plan import seeds
 from ..plan.compiler import Job
@@ -95,6 +96,7 @@ class RenderStep:
         # Paths in a spec are relative to the spec file (as the compiler hashes them), never to
         # wherever the build was started.
         options = plugin.options_for(inputs.backend.relative_to(spec_dir), inputs.quality)
+        self.supersample = options.supersample  # the level's calibration may set it
         self.backend = Held(lambda: plugin.load_class()(options, threads=threads))
         self.albedo = Held(self._albedo_renderer)
 
@@ -223,9 +225,17 @@ class RenderStep:
         out = []
         for cam in cams:
             t0 = time.perf_counter()
-            res = backend.render(cam, setup.preset, seed, clamp=clamp)
+            res = render_at(backend, cam, setup.preset, seed, clamp, self.supersample)
             out.append((res, time.perf_counter() - t0))
         return out
+
+
+def render_at(backend, cam: CameraIR, preset, seed: int, clamp: float | None, supersample: int = 1) -> RenderResult:
+    """One render of ``preset`` from ``cam``; with ``supersample`` > 1 rendered at that many times
+    the resolution and brought back to it (``model.supersample``), its time included."""
+    if supersample == 1:
+        return backend.render(cam, preset, seed, clamp=clamp)
+    return downsampled(backend.render(cam.scaled(supersample), preset, seed, clamp=clamp), supersample)
 
 
 def write_image(image: _Image, products: tuple[ViewProduct, ...]) -> dict[str, Any]:

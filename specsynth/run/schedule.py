@@ -19,14 +19,16 @@ EST_SECONDS = {"arrange": 0.5, "view": 0.08}
 
 
 def _samples(graph: JobGraph) -> int:
-    """The backends' rule: an explicit (or calibrated) `samples`, else max(AA, diffuse rays, specular rays)."""
+    """Samples per pixel of the image's own size: the backends' rule, an explicit (or calibrated)
+    `samples`, else max(AA, diffuse rays, specular rays); times the pixels a supersampled render
+    traces per pixel of the image."""
     q = graph.spec.quality.resolved()
     options = graph.spec.backend
     try:
         options = backend_plugin(options.name).options_for(options, graph.spec.quality)
     except PluginNotFound:
         pass
-    return options.samples or q.samples
+    return (options.samples or q.samples) * options.supersample**2
 
 
 def render_estimate(graph: JobGraph) -> float:

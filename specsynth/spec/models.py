@@ -548,7 +548,7 @@ PAPER_PRESETS: dict[str, QualityPreset] = {
 class Quality(Strict):
     level: Literal["low", "medium", "high", "paper_low", "paper_medium", "paper_high"] = Field(
         "low", description="low/medium/high: at least the paper presets' image error at the least cost on the "
-        "backend (its calibrated samples and denoising, tabled in docs/quality.md); "
+        "backend (its calibrated samples, denoising and supersampling, tabled in docs/quality.md); "
         "paper_low/paper_medium/paper_high: the paper's raw settings, for its experiments.")
     presets: dict[Literal["low", "medium", "high"], QualityOverride] = Field(
         default_factory=dict, description="Overrides of the paper's preset numbers, per level."
@@ -600,6 +600,11 @@ class BackendOptions(Strict):
         "first in passes of their own. Backends that take the option say what each costs.")
     samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count "
                                 "(under quality.control: error, the first pair's samples per render).")
+    supersample: int = Field(
+        1, ge=1, le=4, description="Render each image at this many times its resolution (samples per pixel of "
+        "that image) and average each block of pixels: a denoiser then sees every feature over more pixels and "
+        "keeps more of it (docs/quality.md, 'Supersampling'). Annotations stay exact. Not under quality.control: "
+        "error, whose images are rendered at their own resolution.")
 
     def input_folders(self) -> dict[str, str]:
         """Folders (other than assets) whose files change renders, by option name: the compiler

@@ -31,9 +31,12 @@ PLUGIN = BackendPlugin(
     checks="specsynth_cycles.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/cycles  (needs the bpy==5.0.1 wheel)",
     # At full VGA on the demo's first two views (docs/quality.md, "The calibration run"): paper
-    # medium 29.69 dB in 50 s, 4 spp + OIDN 30.70 dB in 6.4 s (3 spp: 29.03); paper high 35.50 dB
-    # in 336 s, 24 spp + OIDN 35.59 dB in 33 s (16 spp: 35.03). Low: the paper's 1 spp is the cheapest.
-    calibrated={"medium": {"samples": 4, "denoise": True}, "high": {"samples": 24, "denoise": True}},
+    # medium 29.69 dB in 50 s, 4 spp + OIDN 30.70 dB in 6.4 s (3 spp: 29.03; 1 spp at twice the
+    # resolution 30.77 dB in twice the time); paper high 35.50 dB in 336 s, 4 spp + OIDN at twice
+    # the resolution 35.53 dB in 31.4 s, against 24 spp + OIDN 35.59 dB in 35.9 s the same day
+    # (16 spp: 35.03). Low: the paper's 1 spp is the cheapest.
+    calibrated={"medium": {"samples": 4, "denoise": True},
+                "high": {"samples": 4, "supersample": 2, "denoise": True}},
     # Tabulated Sobol: one render's error falls faster towards the preset's 225 samples than over
     # its first few (continued halves: 1.2 from 16 to 225; on the two 320x240 bench views, pairs of
     # 2-6 samples fell at 1 or less, and targets from them at a rate of 1 were 1.87x and 1.50x the

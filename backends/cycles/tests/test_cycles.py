@@ -191,6 +191,31 @@ def test_projection_matches_K(backend, meshes, W, H, fx, fy, cx, cy):
     assert np.abs(np.array([uu[m].mean(), vv[m].mean()]) - expected).max() < 0.5
 
 
+@pytest.mark.slow
+def test_a_supersampled_render_is_the_image_at_its_own_resolution(backend, meshes):
+    """``backend.supersample: 2`` renders the camera at twice its resolution and averages each 2x2
+    block: a small emissive sphere's centroid lands where K puts it at the image's own resolution
+    (an off-by-half-a-pixel scaling would miss by 0.25 px), and the image holds the radiance of a
+    render made at that resolution."""
+    from specsynth.run.render import render_at
+
+    X = np.array([0.25, -0.15, 0.1])
+    glow = MaterialIR(base_color=(0, 0, 0), specular=0.0, emission=(1, 1, 1))
+    backend.load(RenderScene(meshes=(inst(meshes, "sphere", t=X, s=0.08, material=glow, k=0),), world=WorldIR(color=(0, 0, 0))))
+    cam = camera(64, 48, 60.0, 62.0, 30.2, 25.7)
+    preset = QualityPreset(**{**LOW.model_dump(), "aa": 16})
+    big = render_at(backend, cam, preset, 3, None, supersample=2)
+    own = render_at(backend, cam, preset.model_copy(update={"aa": 64}), 3, None)
+    assert big.rgb.shape == own.rgb.shape == (48, 64, 3) and big.stats["supersample"] == 2
+    vv, uu = np.mgrid[0:48, 0:64]
+    expected = project(cam.K_array, cam.T_w2c, X[None])[0]
+    for img in (big.linear[..., 0], own.linear[..., 0]):
+        centroid = np.array([(uu * img).sum(), (vv * img).sum()]) / img.sum()
+        assert np.abs(centroid - expected).max() < 0.05, (centroid, expected)
+    assert abs(big.linear.sum() / own.linear.sum() - 1) < 0.03  # its area, ~9 px: ~12 edge pixels sampled
+    assert np.abs(big.linear - own.linear).max() < 0.25  # edge pixels: 64 samples of coverage each
+
+
 def _lit_scene(meshes, glossy: bool = False) -> RenderScene:
     floor_mat = MaterialIR(base_color=(0.6, 0.6, 0.6), roughness=0.9, specular=0.2)
     obj_mat = MaterialIR(base_color=(0.8, 0.3, 0.2), metallic=1.0 if glossy else 0.0, roughness=0.2 if glossy else 0.8, specular=0.3)

@@ -40,7 +40,8 @@ PLUGIN = BackendPlugin(
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
     # At full VGA on the demo's first two views (docs/quality.md, "The calibration run"): paper
     # medium 25.59 dB in 24 s, 1 spp + OIDN 28.87 dB in 3.0 s; paper high 33.44 dB in 167 s, 16 spp
-    # + OIDN 33.95 dB in 15 s (9 spp: 32.93). The stratified sampler renders squares only.
+    # + OIDN 33.95 dB in 15 s (9 spp: 32.93). The stratified sampler renders squares only. At twice
+    # the resolution (docs/quality.md, "Supersampling") 4 spp were short (32.55 dB) and 9 slower (40 s).
     calibrated={"medium": {"samples": 1, "denoise": True}, "high": {"samples": 16, "denoise": True}},
     sample_counts=samples_taken,  # quality.control: error plans with the counts the sampler takes
 )
