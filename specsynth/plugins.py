@@ -17,6 +17,7 @@ only finds them and reports what is missing (``output_switches``).
 from __future__ import annotations
 
 import importlib
+import math
 from dataclasses import dataclass, field
 from functools import partial
 from importlib import metadata
@@ -140,20 +141,32 @@ class BackendPlugin:
         that turns denoising off gets the paper preset's own samples instead of a noisy image.
         Under ``quality.control: error`` every render takes the samples the error target asks for
         (the preset's, set per render): no ``samples`` here, the spec's own start the image
-        (``error_target``), and no supersampling. A calibrated ``supersample`` goes with the
-        calibrated ``samples``: a spec with a count of its own renders at its own resolution."""
+        (``error_target``), and no supersampling. A calibrated count and its ``supersample`` are
+        one setting (``calibration``)."""
+        update = {k: v for k, v in self.calibration(options, quality).items() if k not in options.model_fields_set}
+        if getattr(quality, "control", "samples") == "error" and options.samples is not None:
+            update["samples"] = None
+        return options.model_copy(update=update) if update else options
+
+    def calibration(self, options: Any, quality: Any) -> dict[str, Any]:
+        """The level's calibrated option values as they apply to a spec's ``options``: none when the
+        spec turns off the denoiser they rely on; without ``samples`` and ``supersample`` under an
+        error target; without ``supersample`` when the spec sets its own count (at its own
+        resolution); and with as many samples as the calibration traces per pixel of the image when
+        the spec sets its own ``supersample`` (Cycles' 4 at 2x are 16 at 1x, 2 at 3x)."""
         cal = dict(self.calibrated.get(quality.paper_level) or {}) if quality.calibrated else {}
-        update = {}
-        if "samples" in options.model_fields_set:  # a count of the spec's own is at its own resolution
-            cal.pop("supersample", None)
+        mine = options.model_fields_set
+        if cal.get("denoise") and "denoise" in mine and not options.denoise:
+            return {}
         if getattr(quality, "control", "samples") == "error":
             cal.pop("samples", None)
             cal.pop("supersample", None)  # an error target renders an image at its own resolution
-            if options.samples is not None:
-                update["samples"] = None
-        if cal and not (cal.get("denoise") and "denoise" in options.model_fields_set and not options.denoise):
-            update.update({k: v for k, v in cal.items() if k not in options.model_fields_set})
-        return options.model_copy(update=update) if update else options
+        elif "samples" in mine:
+            cal.pop("supersample", None)
+        elif "supersample" in mine and "samples" in cal:
+            traced = cal["samples"] * cal.pop("supersample", 1) ** 2
+            cal["samples"] = max(1, math.ceil(traced / options.supersample**2))
+        return cal
 
     def error_target(self, options: Any, quality: Any):
         """``quality.control: error``: the paper preset's samples (whose error is the target), the

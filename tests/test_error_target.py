@@ -859,6 +859,11 @@ def test_error_control_refuses_supersampling_at_its_line(tmp_path):
         compile_spec(load_spec(f))
     assert "backend.supersample" in str(e.value) and "t.yaml:16:" in str(e.value)
     assert compile_spec(load_spec(f, ["quality.control=samples"])).n_arrangements >= 1
+    # a backend without sampling noise has nothing to average, and filters in its own pixels
+    f.write_text(TINY.replace("BACKEND", "photo\n  supersample: 2").replace("control: error", "control: samples"))
+    with pytest.raises(SpecError) as e:
+        compile_spec(load_spec(f))
+    assert "backend.supersample" in str(e.value) and "no sampling noise" in str(e.value) and "t.yaml:16:" in str(e.value)
 
 
 def test_renders_are_keyed_by_the_calibration_of_their_level(tmp_path, monkeypatch):
@@ -873,15 +878,17 @@ def test_renders_are_keyed_by_the_calibration_of_their_level(tmp_path, monkeypat
     f = tmp_path / "t.yaml"
     f.write_text(TINY.replace("BACKEND", "cycles"))
     high, low = (["quality.control=samples", f"quality.level={lv}"] for lv in ("high", "low"))
-    before = {lv: compile_spec(load_spec(f, o)) for lv, o in (("high", high), ("low", low))}
-    assert "supersample" in before["high"].stage_inputs["render"]["calibration"]
     real = compiler.backend_plugin
 
-    def recalibrated(name):
-        plugin = real(name)
-        return dataclasses.replace(plugin, calibrated={**plugin.calibrated, "high": {"samples": 7, "denoise": True}})
+    def calibrated(high_level):
+        def plugin(name):
+            return dataclasses.replace(real(name), calibrated={"high": high_level})
+        return plugin
 
-    monkeypatch.setattr(compiler, "backend_plugin", recalibrated)
+    monkeypatch.setattr(compiler, "backend_plugin", calibrated({"samples": 3, "supersample": 2, "denoise": True}))
+    before = {lv: compile_spec(load_spec(f, o)) for lv, o in (("high", high), ("low", low))}
+    assert before["high"].stage_inputs["render"]["calibration"] == '{"denoise":true,"samples":3,"supersample":2}'
+    monkeypatch.setattr(compiler, "backend_plugin", calibrated({"samples": 7, "denoise": True}))
     after = {lv: compile_spec(load_spec(f, o)) for lv, o in (("high", high), ("low", low))}
     assert after["high"].stage_digests["render"] != before["high"].stage_digests["render"]
     assert after["high"].stage_digests["view"] == before["high"].stage_digests["view"]

@@ -189,8 +189,8 @@ class CameraIR:
     def scaled(self, factor: int) -> "CameraIR":
         """The same view at ``factor`` times the resolution: each pixel split into factor x factor
         whose mean is the pixel (OpenCV's pixel centres at integers: ``c' = (c + 0.5) f - 0.5``)."""
-        if factor < 1 or factor != int(factor):
-            raise ValueError(f"a camera is scaled by a whole factor of at least 1, got {factor}")
+        if not isinstance(factor, int) or isinstance(factor, bool) or factor < 1:
+            raise ValueError(f"a camera is scaled by a whole factor of at least 1, got {factor!r}")
         K = self.K_array.copy()
         K[:2, :3] *= factor
         K[:2, 2] += 0.5 * factor - 0.5

@@ -102,8 +102,8 @@ def check_room_categories(ref, i: int, loaded: LoadedSpec) -> list:
 
 
 def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
-    """Located problems for a camera effect the spec's backend cannot render, or an error target it
-    cannot keep (no sampling noise; a budget no pair of its sample counts fits; supersampling)."""
+    """Located problems for a camera effect the spec's backend cannot render, supersampling where
+    it has no samples to average, or an error target it cannot keep (``error_control_problems``)."""
     problems = []
     plugin = backend_plugin(spec.backend.name)
     caps = plugin.capabilities
@@ -112,18 +112,28 @@ def check_capabilities(spec: DatasetSpec, loaded: LoadedSpec) -> list:
             problems.append(loaded.locate(f"cameras.{name}", f"backend {spec.backend.name!r} cannot render {what} (its "
                                           f"plugin does not declare it); remove {name} or use one that does "
                                           "(`specsynth backends`)"))
-    if spec.quality.control == "error" and not caps.sampling_noise:
-        problems.append(loaded.locate("quality.control", f"backend {spec.backend.name!r} has no sampling noise to "
-                                      "control (its plugin does not declare sampling_noise); use control: samples"))
-    elif spec.quality.control == "error" and spec.backend.supersample > 1:
-        problems.append(loaded.locate("backend.supersample", "an error target renders each image at its own "
-                                      "resolution; remove backend.supersample or use quality.control: samples"))
-    elif spec.quality.control == "error":
-        try:
-            plugin.error_target(spec.backend, spec.quality)
-        except ValueError as e:
-            problems.append(loaded.locate("quality.max_samples", str(e)))
-    return problems
+    if spec.backend.supersample > 1 and not caps.sampling_noise:
+        problems.append(loaded.locate("backend.supersample", f"backend {spec.backend.name!r} has no sampling noise "
+                                      "to average (its plugin does not declare sampling_noise), and its filters "
+                                      "work in pixels of the image it renders; remove backend.supersample"))
+    return problems + (error_control_problems(spec, loaded) if spec.quality.control == "error" else [])
+
+
+def error_control_problems(spec: DatasetSpec, loaded: LoadedSpec) -> list:
+    """Located problems of ``quality.control: error``: no sampling noise to control, supersampling
+    beside it, or a budget no pair of the backend's sample counts fits."""
+    plugin = backend_plugin(spec.backend.name)
+    if not plugin.capabilities.sampling_noise:
+        return [loaded.locate("quality.control", f"backend {spec.backend.name!r} has no sampling noise to control "
+                              "(its plugin does not declare sampling_noise); use control: samples")]
+    if spec.backend.supersample > 1:
+        return [loaded.locate("backend.supersample", "an error target renders each image at its own resolution; "
+                              "remove backend.supersample or use quality.control: samples")]
+    try:
+        plugin.error_target(spec.backend, spec.quality)
+    except ValueError as e:
+        return [loaded.locate("quality.max_samples", str(e))]
+    return []
 
 
 def arr_id(arr: int) -> str:
@@ -155,13 +165,16 @@ class Job:
 
 
 def calibration_applied(spec: DatasetSpec) -> str:
-    """What the backend's calibration of the spec's level sets that the spec does not (its option
-    values, canonical JSON), or "": a render key holds it, so a build made with an earlier
-    calibration of its level renders again instead of reading images of other samples."""
+    """The option values the backend's calibration of the spec's level sets (canonical JSON), or
+    "": a render key holds them, so a build made with another calibration of its level renders
+    again instead of reading images of other samples."""
     options = spec.backend
-    applied = backend_plugin(options.name).options_for(options, spec.quality)
-    changed = {k: getattr(applied, k) for k in type(applied).model_fields if getattr(applied, k) != getattr(options, k)}
-    return keys.canonical_json(changed).decode() if changed else ""
+    plugin = backend_plugin(options.name)
+    keys_set = set(plugin.calibration(options, spec.quality)) - options.model_fields_set
+    if not keys_set:
+        return ""
+    applied = plugin.options_for(options, spec.quality).model_dump(mode="json", include=keys_set)
+    return keys.canonical_json(applied).decode()
 
 
 def backend_fingerprint(name: str) -> str:

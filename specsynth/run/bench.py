@@ -461,7 +461,8 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
             res = draw(cam, seed)
             ts.append(time.perf_counter() - t0)
         times.append(statistics.median(ts))
-        samples = int(res.stats.get("samples", res.stats.get("spp", 0)))
+        # per pixel of the image: a supersampled render traces F^2 times its count
+        samples = int(res.stats.get("samples", res.stats.get("spp", 0))) * int(res.stats.get("supersample", 1)) ** 2
         for k, v in (res.stats.get("phases") or {}).items():
             phase_sums[k] = phase_sums.get(k, 0.0) + v / len(picked)
         lin = res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255

@@ -44,11 +44,12 @@ class RenderSetup:
     preset: QualityPreset
     target: ErrorTarget | None  # quality.control: error
     products: tuple[ViewProduct, ...]  # what every image writes besides its colour (by name)
+    supersample: int = 1  # each image rendered at this many times its resolution (the level's calibration may set it)
 
     @classmethod
     def of(cls, inputs: RenderInputs, plugin: BackendPlugin) -> "RenderSetup":
         return cls(inputs, plugin.capabilities.draws_scene, inputs.quality.resolved(), error_target(inputs, plugin),
-                   tuple(active_products(inputs)))
+                   tuple(active_products(inputs)), plugin.options_for(inputs.backend, inputs.quality).supersample)
 
     @property
     def occluders(self) -> str:
@@ -96,7 +97,6 @@ class RenderStep:
         # Paths in a spec are relative to the spec file (as the compiler hashes them), never to
         # wherever the build was started.
         options = plugin.options_for(inputs.backend.relative_to(spec_dir), inputs.quality)
-        self.supersample = options.supersample  # the level's calibration may set it
         self.backend = Held(lambda: plugin.load_class()(options, threads=threads))
         self.albedo = Held(self._albedo_renderer)
 
@@ -225,14 +225,14 @@ class RenderStep:
         out = []
         for cam in cams:
             t0 = time.perf_counter()
-            res = render_at(backend, cam, setup.preset, seed, clamp, self.supersample)
+            res = render_at(backend, cam, setup.preset, seed, clamp, setup.supersample)
             out.append((res, time.perf_counter() - t0))
         return out
 
 
 def render_at(backend, cam: CameraIR, preset, seed: int, clamp: float | None, supersample: int = 1) -> RenderResult:
     """One render of ``preset`` from ``cam``; with ``supersample`` > 1 rendered at that many times
-    the resolution and brought back to it (``model.supersample``), its time included."""
+    the resolution and brought back to it (``model.supersample``)."""
     if supersample == 1:
         return backend.render(cam, preset, seed, clamp=clamp)
     return downsampled(backend.render(cam.scaled(supersample), preset, seed, clamp=clamp), supersample)

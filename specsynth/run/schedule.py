@@ -18,26 +18,25 @@ from ..plugins import PluginNotFound, backend_plugin
 EST_SECONDS = {"arrange": 0.5, "view": 0.08}
 
 
-def _samples(graph: JobGraph) -> int:
-    """Samples per pixel of the image's own size: the backends' rule, an explicit (or calibrated)
-    `samples`, else max(AA, diffuse rays, specular rays); times the pixels a supersampled render
-    traces per pixel of the image."""
-    q = graph.spec.quality.resolved()
+def _options(graph: JobGraph):
+    """The spec's backend options with its level's calibration (the spec's own when the plugin is missing)."""
     options = graph.spec.backend
     try:
-        options = backend_plugin(options.name).options_for(options, graph.spec.quality)
+        return backend_plugin(options.name).options_for(options, graph.spec.quality)
     except PluginNotFound:
-        pass
-    return (options.samples or q.samples) * options.supersample**2
+        return options
 
 
 def render_estimate(graph: JobGraph) -> float:
-    """Estimated seconds per render, from the backend plugin's own cost model."""
+    """Estimated seconds per render, from the backend plugin's own cost model: a frame of the
+    image's pixels and its samples (the backends' rule, an explicit or calibrated `samples`, else
+    max(AA, diffuse rays, specular rays)), times the pixels a supersampled render has per pixel."""
     try:
         a, b = backend_plugin(graph.spec.backend.name).cost
     except PluginNotFound:
         a, b = 1.0, 0.1
-    return a + b * _samples(graph)
+    options = _options(graph)
+    return (a + b * (options.samples or graph.spec.quality.resolved().samples)) * options.supersample**2
 
 
 def _is_crash(e: BaseException) -> bool:

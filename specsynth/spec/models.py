@@ -601,10 +601,11 @@ class BackendOptions(Strict):
     samples: int | None = Field(None, ge=1, le=1_000_000, description="Override the preset-derived sample count "
                                 "(under quality.control: error, the first pair's samples per render).")
     supersample: int = Field(
-        1, ge=1, le=4, description="Render each image at this many times its resolution (samples per pixel of "
-        "that image) and average each block of pixels: a denoiser then sees every feature over more pixels and "
-        "keeps more of it (docs/quality.md, 'Supersampling'). Annotations stay exact. Not under quality.control: "
-        "error, whose images are rendered at their own resolution.")
+        1, ge=1, le=4, description="F: render each image at F times its resolution and average each F x F block "
+        "of pixels; `samples` are per pixel of the larger image, F^2 x samples per pixel of the image. A denoiser "
+        "then sees every feature over more pixels and keeps more of it (docs/quality.md, 'Supersampling'). "
+        "Annotations stay exact. Not under quality.control: error, whose images are rendered at their own "
+        "resolution, nor on a backend without sampling noise.")
 
     def input_folders(self) -> dict[str, str]:
         """Folders (other than assets) whose files change renders, by option name: the compiler
