@@ -164,7 +164,8 @@ class BackendPlugin:
         elif "samples" in mine:
             cal.pop("supersample", None)
         elif "supersample" in mine and "samples" in cal:
-            traced = cal["samples"] * cal.pop("supersample", 1) ** 2
+            traced = traced_samples(cal)
+            cal.pop("supersample", None)
             cal["samples"] = max(1, math.ceil(traced / options.supersample**2))
         return cal
 
@@ -183,8 +184,7 @@ class BackendPlugin:
         paper = quality.resolved().samples
         cal = self.calibrated.get(quality.paper_level, {}) if quality.calibrated else {}
         counts = partial(self.sample_counts, options) if self.sample_counts is not None else None
-        # a calibrated render's samples at its own resolution: a supersampled one traces f^2 as many
-        want = options.samples or max(1, int(cal.get("samples", 2)) * int(cal.get("supersample", 1)) ** 2 // 2)
+        want = options.samples or max(1, traced_samples(cal, default=2) // 2)
         budget = quality.max_samples or max(BUDGET_FACTOR * paper, 2 * taken(counts, want))
         soft = None if quality.max_samples else paper  # the default budget: the preset's samples first
         start = per_render(counts, want, budget)
@@ -223,6 +223,12 @@ class BackendPlugin:
         if self.revision > 1:
             parts.append(f"backend rev {self.revision}")
         return f"{self.name} ({'; '.join(parts)})"
+
+
+def traced_samples(calibrated: dict[str, Any], default: int = 1) -> int:
+    """Samples per pixel of the image one render of a calibration traces: its ``samples`` (else
+    ``default``) times the F^2 pixels of a ``supersample`` of F."""
+    return int(calibrated.get("samples", default)) * int(calibrated.get("supersample", 1)) ** 2
 
 
 def dist_version(name: str) -> str:
