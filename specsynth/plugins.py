@@ -110,6 +110,10 @@ class BackendPlugin:
     # error for less (measured by `specsynth bench --ladder`), e.g. {"high": {"samples": 16,
     # "denoise": True}}. Applied unless the spec sets the option itself; paper_* levels never.
     calibrated: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # Calibrated options that change how a render draws its samples (Mitsuba's emitter_sampling):
+    # under an error target the image's own renders measure its target, the paper preset's
+    # error, so they keep the spec's value of these, as the preset renders.
+    sampling_options: tuple[str, ...] = ()
     # "module:function" -> list[Check]: the plugin's own installation check for `specsynth doctor`
     # (whether its renderer imports, its version, what the machine offers it). Imported only then.
     checks: str = ""
@@ -150,18 +154,20 @@ class BackendPlugin:
 
     def calibration(self, options: Any, quality: Any) -> dict[str, Any]:
         """The level's calibrated option values as they apply to a spec's ``options``: none when the
-        spec turns off the denoiser they rely on; without ``samples`` and ``supersample`` under an
-        error target; without ``supersample`` when the spec sets its own count (at its own
-        resolution); and with as many samples as the calibration traces per pixel of the image when
-        the spec sets its own ``supersample`` (Cycles' 4 at 2x are 16 at 1x, 2 at 3x)."""
+        spec turns off the denoiser they rely on; under an error target without ``samples``,
+        ``supersample`` and the plugin's ``sampling_options``; without
+        ``supersample`` when the spec sets its own count (at its own resolution); and with as many
+        samples as the calibration traces per pixel of the image when the spec sets its own
+        ``supersample`` (Cycles' 4 at 2x are 16 at 1x, 2 at 3x)."""
         cal = dict(self.calibrated.get(quality.paper_level) or {}) if quality.calibrated else {}
         mine = options.model_fields_set
         if cal.get("denoise") and "denoise" in mine and not options.denoise:
             return {}
         if getattr(quality, "control", "samples") == "error":
-            cal.pop("samples", None)
-            cal.pop("supersample", None)  # an error target renders an image at its own resolution
-        elif "samples" in mine:
+            # an error target renders an image at its own resolution, with the samples its target
+            # asks for, drawn as the preset draws them (``sampling_options``)
+            return {k: v for k, v in cal.items() if k not in ("samples", "supersample", *self.sampling_options)}
+        if "samples" in mine:
             cal.pop("supersample", None)
         elif "supersample" in mine and "samples" in cal:
             traced = traced_samples(cal)
@@ -172,7 +178,7 @@ class BackendPlugin:
     def error_target(self, options: Any, quality: Any):
         """``quality.control: error``: the paper preset's samples (whose error is the target), the
         samples per render of the first pair (the spec's own ``options``' samples, else half the
-        level's calibrated samples, times the pixels a calibrated supersampled render traces per
+        level's calibrated samples, rounded up, times the pixels a calibrated supersampled render traces per
         pixel of the image: the first pair costs what one calibrated render does, each as the
         renderer takes it) and the image's budget: ``quality.max_samples``, else ``BUDGET_FACTOR``
         times the preset's samples, spent past those only by an image not at its target within
@@ -184,7 +190,7 @@ class BackendPlugin:
         paper = quality.resolved().samples
         cal = self.calibrated.get(quality.paper_level, {}) if quality.calibrated else {}
         counts = partial(self.sample_counts, options) if self.sample_counts is not None else None
-        want = options.samples or max(1, traced_samples(cal, default=2) // 2)
+        want = options.samples or math.ceil(traced_samples(cal, default=2) / 2)
         budget = quality.max_samples or max(BUDGET_FACTOR * paper, 2 * taken(counts, want))
         soft = None if quality.max_samples else paper  # the default budget: the preset's samples first
         start = per_render(counts, want, budget)

@@ -98,15 +98,43 @@ def test_only_picks_the_named_settings_and_always_the_reference():
         pick_settings(every, ("high+denoise@3",))
     # a backend that denoises takes any rung, not only the ladder's powers of two
     picked = pick_settings(every, ("high", "high+denoise@20"), denoise=True)
-    assert [(s.label, s.options) for s in picked[:2]] == [("high", {}), ("high+denoise@20", {"denoise": True, "samples": 20})]
+    assert [(s.label, s.options) for s in picked[:2]] == [("high", {}), ("high+denoise@20", {"denoise": True, "samples": 20, "__rung__": True})]
     with pytest.raises(ValueError, match=r"no setting 'low\+denoise@20'"):
         pick_settings(every, ("low+denoise@20",), denoise=True)
     # and at a multiple of the resolution: N samples per pixel of the larger image (backend.supersample)
     picked = pick_settings(every, ("high+denoise@8x2",), denoise=True)
-    assert (picked[0].label, picked[0].options) == ("high+denoise@8x2", {"denoise": True, "samples": 8, "supersample": 2})
+    assert (picked[0].label, picked[0].options) == ("high+denoise@8x2", {"denoise": True, "samples": 8, "supersample": 2, "__rung__": True})
     for bad in ("high+denoise@8x5", "high+denoise@8x1", "high+denoise@8x", "high+denoise@x2"):
         with pytest.raises(ValueError, match="no setting"):
             pick_settings(every, (bad,), denoise=True)
+
+
+def test_a_rung_renders_its_levels_calibrated_way_unless_the_spec_says_otherwise():
+    """Mitsuba's calibrated levels pick emitters by power: its rungs do too, so the ladder measures
+    the counts the calibration chooses from; a spec's own emitter_sampling is kept, and the plain
+    preset renders Mitsuba's own way."""
+    from specsynth.plugins import backend_plugin
+    from specsynth.run.bench import _setting_options, pick_settings, settings_for
+    from specsynth.spec.models import DatasetSpec as Spec
+
+    plugin = backend_plugin("mitsuba")
+    assert plugin.calibrated["high"]["emitter_sampling"] == "power"
+    import yaml
+    from test_error_target import TINY
+
+    tiny = {**yaml.safe_load(TINY.replace("BACKEND", "mitsuba")), "quality": {"level": "high"}}
+    spec = Spec.model_validate({**tiny, "backend": {"name": "mitsuba"}})
+    every = pick_settings(settings_for(plugin, 2, ("high",)), ("high", "high+denoise@9", "high+calibrated",
+                                                               "high+targeted"), denoise=True)
+    plain, rung, calibrated, targeted, reference = (_setting_options(plugin, st, spec.backend.model_dump(), spec)[0]
+                                                    for st in every)
+    assert (plain.emitter_sampling, rung.emitter_sampling, rung.samples, rung.denoise) == ("uniform", "power", 9, True)
+    assert calibrated.emitter_sampling == "power"
+    # the reference, and an error target's renders, which measure the preset's error: Mitsuba's own
+    assert reference.emitter_sampling == targeted.emitter_sampling == "uniform"
+    mine = Spec.model_validate({**tiny, "backend": {"name": "mitsuba", "emitter_sampling": "uniform"}})
+    rung, _, _ = _setting_options(plugin, every[1], mine.backend.model_dump(), mine)
+    assert rung.emitter_sampling == "uniform"
 
 
 def _rows(psnr_by_samples: dict[int, float], taken=None) -> list:

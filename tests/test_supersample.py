@@ -108,6 +108,18 @@ def test_a_calibrated_supersample_goes_with_its_samples():
     assert flat.options_for(BackendOptions(name="y", supersample=2), high).samples == 4
 
 
+def test_an_error_target_keeps_what_a_calibration_sets_but_how_samples_are_drawn():
+    """Under an error target the calibration loses its counts and its plugin's sampling options
+    (the image's renders measure the preset's error, so they draw samples as the preset does);
+    whatever else it sets stays."""
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X", sampling_options=("supersample",),
+                           calibrated={"high": {"samples": 8, "denoise": True, "denoise_quality": "balanced"}})
+    error = Quality(level="high", control="error")
+    assert plugin.calibration(BackendOptions(name="x"), error) == {"denoise": True, "denoise_quality": "balanced"}
+    filled = plugin.options_for(BackendOptions(name="x"), error)
+    assert (filled.samples, filled.denoise, filled.denoise_quality) == (None, True, "balanced")
+
+
 @pytest.mark.parametrize("bad", [0, 5])
 def test_supersample_is_bounded(bad):
     from pydantic import ValidationError

@@ -153,10 +153,23 @@ def settings_for(plugin: BackendPlugin, ref_factor: int, levels: tuple[str, ...]
 
 def rung(plugin_name: str, level: str, samples: int, supersample: int = 1) -> Setting:
     """The level's light paths at ``samples`` with denoising (at ``supersample`` times the
-    resolution: ``<level>+denoise@NxF``): one rung of the ladder."""
+    resolution: ``<level>+denoise@NxF``): one rung of the ladder, which renders the level's
+    calibrated way but for its samples (``calibrated_way``)."""
     label = f"{level}+denoise@{samples}" + (f"x{supersample}" if supersample > 1 else "")
-    options = {"denoise": True, "samples": samples, **({"supersample": supersample} if supersample > 1 else {})}
+    options = {"denoise": True, "samples": samples, **({"supersample": supersample} if supersample > 1 else {}),
+               "__rung__": True}
     return Setting(plugin_name, label, level, options)
+
+
+SAMPLING = ("samples", "supersample", "denoise")  # what a rung sets itself
+
+
+def calibrated_way(plugin: BackendPlugin, level: str, spec_backend) -> dict:
+    """The options of a level's calibration other than its samples and denoiser (Mitsuba's
+    ``emitter_sampling``), where the spec does not set them: a rung renders as the calibrated
+    level would at its samples, so the ladder measures the counts a calibration can choose from."""
+    mine = spec_backend.model_fields_set if spec_backend.name == plugin.name else set()
+    return {k: v for k, v in (plugin.calibrated.get(level) or {}).items() if k not in SAMPLING and k not in mine}
 
 
 def _rung_of(label: str, level: str) -> tuple[int, int] | None:
@@ -408,7 +421,8 @@ def _setting_options(plugin: BackendPlugin, st: Setting, base_opts: dict, spec):
     """(the backend's options, the preset it renders, the error target of a ``+targeted`` setting
     or None) of one setting; a reference renders every ray count of the preset times its factor,
     each of its parts half that (backends take samples from their max)."""
-    opts = {**base_opts, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
+    way = calibrated_way(plugin, st.level, spec.backend) if st.options.get("__rung__") else {}
+    opts = {**base_opts, **way, **{k: v for k, v in st.options.items() if not k.startswith("__")}}
     preset = spec.quality.model_copy(update={"level": f"paper_{st.level}"}).resolved()
     if st.reference:
         f = st.options["__factor__"]

@@ -38,11 +38,14 @@ PLUGIN = BackendPlugin(
     cost=(0.11, 0.122),
     checks="specsynth_mitsuba.checks:checks",  # `specsynth doctor`
     install_hint="pip install -e backends/mitsuba  (and, for the LLVM variant, apt-get install libllvm19)",
-    # At full VGA on the demo's first two views (docs/quality.md, "The calibration run"): paper
-    # medium 25.59 dB in 24 s, 1 spp + OIDN 28.87 dB in 3.0 s; paper high 33.44 dB in 167 s, 16 spp
-    # + OIDN 33.95 dB in 15 s (9 spp: 32.93). The stratified sampler renders squares only. At twice
-    # the resolution (docs/quality.md, "Supersampling") 4 spp were short (32.55 dB) and 9 slower (40 s).
-    calibrated={"medium": {"samples": 1, "denoise": True}, "high": {"samples": 16, "denoise": True}},
+    # At full VGA on the demo's first two views, emitters picked by power (docs/quality.md, "The
+    # calibration run"): paper medium 25.59 dB in 22.5 s, 1 spp + OIDN 30.76 dB in 3.0 s; paper
+    # high 33.44 dB in 176 s, 9 spp + OIDN 34.27 dB in 8.2 s (4 spp: 32.34; 4 at twice the
+    # resolution 34.19 in 16.3 s). The stratified sampler renders squares only. Picked uniformly,
+    # 9 spp had reached 32.93 dB and `high` needed 16.
+    calibrated={"medium": {"samples": 1, "denoise": True, "emitter_sampling": "power"},
+                "high": {"samples": 9, "denoise": True, "emitter_sampling": "power"}},
+    sampling_options=("emitter_sampling",),  # an error target's renders pick emitters as the preset does
     sample_counts=samples_taken,  # quality.control: error plans with the counts the sampler takes
 )
 

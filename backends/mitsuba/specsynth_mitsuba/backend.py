@@ -100,7 +100,7 @@ class MitsubaBackend:
                 data = held.get(inst.mesh_key)
                 self._mesh_cache[inst.mesh_key] = data if data is not None else read_mesh(inst.mesh_path).validate(inst.mesh_path)
         d = scene_mod.scene_dict(mi, scene, self._mesh_cache, calibrate=self.options.match_cycles_bsdf,
-                                 decoded=self._textures)
+                                 decoded=self._textures, emitter_sampling=self.options.emitter_sampling)
         if d.get("world", {}).get("type") == "sunsky" and not self._has_plugin("sunsky"):
             d["world"] = _sky_fallback(scene.world)
         # Serially: parallel loading created the emitters in an order that varied from run to run,

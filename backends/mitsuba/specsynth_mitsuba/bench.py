@@ -5,5 +5,8 @@ from specsynth.run.bench import BenchSettings
 BENCH = BenchSettings(
     variants=(("denoise", {"denoise": True}), ("independent", {"sampler": "independent"}),
               ("ldsampler", {"sampler": "ldsampler"}), ("multijitter", {"sampler": "multijitter"}),
-              ("orthogonal", {"sampler": "orthogonal"})),
+              ("orthogonal", {"sampler": "orthogonal"}),
+              # the level's preset with the calibrated levels' emitter choice: what the paper's
+              # error would be if the preset picked emitters by power (docs/performance.md)
+              ("power", {"emitter_sampling": "power"})),
 )

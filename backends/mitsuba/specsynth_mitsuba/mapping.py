@@ -281,3 +281,59 @@ def sky_scale(strength: float, turbidity: float, elevation: float = 45.0) -> flo
     (bilinear in turbidity and sun elevation, clamped to the table)."""
     by_el = [float(np.interp(elevation, SKY_ELEVATION, row)) for row in SKY_UNITS]
     return float(strength) * float(np.interp(turbidity, SKY_TURBIDITY, by_el))
+
+
+def luminance(rgb) -> float:
+    return 0.2126 * float(rgb[0]) + 0.7152 * float(rgb[1]) + 0.0722 * float(rgb[2])
+
+
+def light_power(kind: str, power: float, color, spot_angle_deg: float = 180.0) -> float | None:
+    """The power (W, luminance-weighted) a light emits into the scene, or None for the sun, whose
+    power in the scene is not defined by itself. A spot emits the cone's share of its point's
+    power (Blender's spot watts are the point's, ``point_intensity``)."""
+    if kind == "sun":
+        return None
+    watts = max(float(power), 0.0) * luminance(color)
+    if kind == "spot":
+        half = math.radians(min(max(spot_angle_deg, 0.0), 180.0)) / 2.0
+        watts *= (1.0 - math.cos(half)) / 2.0
+    return watts
+
+
+def surface_power(emission, area: float) -> float:
+    """A one-sided Lambertian emitter of radiance L and area A emits L A pi (``area_radiance``)."""
+    return max(luminance(emission), 0.0) * max(float(area), 0.0) * math.pi
+
+
+def triangle_area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Total area of a triangle mesh (vertices in metres, as the scene places them)."""
+    if len(faces) == 0:
+        return 0.0
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    return 0.5 * float(np.linalg.norm(cross, axis=1).sum())
+
+
+def emitter_weights(powers: list[float], mode: str) -> list[float]:
+    """Mitsuba's ``sampling_weight`` of each emitter of finite extent (lights, emissive meshes;
+    ``powers`` in W); the environment and the sun keep 1. Mitsuba picks an emitter per shadow ray
+    with probability proportional to its weight, all 1 by default (``uniform``). ``power`` keeps
+    the share the emitters of finite extent have together under uniform choice (their weights sum
+    to their count, so an environment seen through a window is sampled as often as before) and
+    divides it among them by power: the same mean, far less noise where a room has bright and dim
+    lamps (docs/backends/mitsuba.md)."""
+    if mode == "uniform":
+        return [1.0] * len(powers)
+    if mode != "power":
+        raise ValueError(f"unknown emitter sampling {mode!r}")
+    total = sum(max(p, 0.0) for p in powers)
+    if total < MIN_POWER:
+        return [1.0] * len(powers)
+    # a floor keeps every emitter sampled now and then: a weight of 0 would leave light that BSDF
+    # sampling alone finds (MIS with a zero pdf) and a numerically dark lamp invisible to NEE
+    floored = [max(p, 1e-3 * total / len(powers)) for p in powers]
+    return [len(powers) * p / sum(floored) for p in floored]
+
+
+MIN_POWER = 1e-9  # W: below it the emitters together emit nothing that power could divide

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -100,9 +101,10 @@ def _grey_map(mi, path: str, material: MaterialIR, nearest: bool = False) -> dic
     return {"type": "bitmap", "filename": str(path), "raw": True, **_sampling(mi, material, nearest)}
 
 
-def emitter_dict(mi, material: MaterialIR) -> dict:
+def emitter_dict(mi, material: MaterialIR, decoded: DecodedTextures | None = None) -> dict:
     if material.emission_texture:
-        return {"type": "area", "radiance": _texture_scaled(mi, material.emission_texture, material.emission, material)}
+        return {"type": "area", "radiance": _texture_scaled(mi, material.emission_texture, material.emission, material,
+                                                            decoded)}
     return {"type": "area", "radiance": {"type": "rgb", "value": list(material.emission)}}
 
 
@@ -188,7 +190,7 @@ def _inverse3(R: np.ndarray) -> np.ndarray:
 
 
 def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True,
-               decoded: DecodedTextures | None = None):
+               decoded: DecodedTextures | None = None, sampling_weight: float = 1.0):
     T = inst.matrix
     R, t = T[:3, :3], T[:3, 3]
     v = data.vertices.astype(np.float64) @ R.T + t
@@ -202,8 +204,8 @@ def build_mesh(mi, inst: MeshInstance, data: MeshData, calibrate: bool = True,
     vertex_colored = m.use_vertex_colors and data.colors is not None
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf_dict(mi, m, vertex_colored, decoded))
-    if any(c > 0 for c in m.emission):
-        props["emitter"] = mi.load_dict(emitter_dict(mi, m))
+    if emits(inst):
+        props["emitter"] = mi.load_dict({**emitter_dict(mi, m, decoded), "sampling_weight": float(sampling_weight)})
     mesh = mi.Mesh(
         inst.name,
         vertex_count=len(v),
@@ -297,16 +299,60 @@ def world_dict(world: WorldIR) -> dict | None:
     raise ValueError(f"unknown world kind {world.kind!r}")
 
 
+def emits(inst: MeshInstance) -> bool:
+    return any(c > 0 for c in inst.material.emission)
+
+
+def emitter_powers(scene: RenderScene, meshes: dict[str, MeshData],
+                   texture_mean: Callable[[str], float]) -> tuple[list[float | None], list[float]]:
+    """(each light's power, None for a sun; each emissive mesh's), in the order ``scene_dict``
+    adds them. A mesh emits its radiance times the mean of its emission texture over its area as
+    the scene scales it (``texture_mean``: a texture's mean linear luminance)."""
+    lights = [mapping.light_power(x.kind, x.power, x.color, x.spot_angle) for x in scene.lights]
+    surfaces = []
+    for inst in filter(emits, scene.meshes):
+        data = meshes[inst.mesh_key]
+        placed = data.vertices.astype(np.float64) @ inst.matrix[:3, :3].T
+        texture = texture_mean(inst.material.emission_texture) if inst.material.emission_texture else 1.0
+        area = mapping.triangle_area(placed, data.faces)
+        surfaces.append(texture * mapping.surface_power(inst.material.emission, area))
+    return lights, surfaces
+
+
+def sampling_weights(scene: RenderScene, meshes: dict[str, MeshData], mode: str,
+                     texture_mean: Callable[[str], float]) -> tuple[list[float], list[float]]:
+    """Each light's and each emissive mesh's ``sampling_weight`` (``mapping.emitter_weights``); a
+    sun keeps 1, as the world does."""
+    if mode == "uniform":  # Mitsuba's own weights: no powers needed, no emission texture read for them
+        return [1.0] * len(scene.lights), [1.0] * sum(map(emits, scene.meshes))
+    lights, surfaces = emitter_powers(scene, meshes, texture_mean)
+    finite = [p for p in lights if p is not None] + surfaces
+    weights = iter(mapping.emitter_weights(finite, mode))
+    light_w = [1.0 if p is None else next(weights) for p in lights]
+    return light_w, list(weights)
+
+
+def _texture_mean(mi, decoded: DecodedTextures) -> Callable[[str], float]:
+    def mean(path: str) -> float:
+        rgb = decoded.linear(mi, path)
+        return float(mapping.luminance(rgb.reshape(-1, rgb.shape[-1])[:, :3].mean(axis=0)))
+    return mean
+
+
 def scene_dict(mi, scene: RenderScene, meshes: dict[str, MeshData], calibrate: bool = True,
-               decoded: DecodedTextures | None = None) -> dict:
+               decoded: DecodedTextures | None = None, emitter_sampling: str = "uniform") -> dict:
     """``meshes`` maps mesh_key -> arrays and ``decoded`` holds textures (the backend's caches)."""
     d: dict = {"type": "scene"}
     decoded = DecodedTextures() if decoded is None else decoded
     decoded.next_scene()
+    light_w, surface_w = sampling_weights(scene, meshes, emitter_sampling, _texture_mean(mi, decoded))
+    surface_w = iter(surface_w)
     for i, inst in enumerate(scene.meshes):
-        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key], calibrate, decoded)
-    for i, light in enumerate(scene.lights):
+        weight = next(surface_w) if emits(inst) else 1.0
+        d[f"mesh_{i:04d}"] = build_mesh(mi, inst, meshes[inst.mesh_key], calibrate, decoded, weight)
+    for i, (light, weight) in enumerate(zip(scene.lights, light_w)):
         ld = light_dict(light)
+        (ld["emitter"] if "emitter" in ld else ld)["sampling_weight"] = weight
         for k in ("to_world",):
             if k in ld:
                 ld[k] = _matrix(mi, ld[k])
