@@ -155,10 +155,10 @@ class BackendPlugin:
     def calibration(self, options: Any, quality: Any) -> dict[str, Any]:
         """The level's calibrated option values as they apply to a spec's ``options``: none when the
         spec turns off the denoiser they rely on; under an error target without ``samples``,
-        ``supersample`` and the plugin's ``sampling_options``; without
-        ``supersample`` when the spec sets its own count (at its own resolution); and with as many
-        samples as the calibration traces per pixel of the image when the spec sets its own
-        ``supersample`` (Cycles' 4 at 2x are 16 at 1x, 2 at 3x)."""
+        ``supersample`` and the plugin's ``sampling_options``; without ``supersample`` when the
+        spec sets its own count (at its own resolution); and with as many samples as the
+        calibration traces per pixel of the image when the spec sets its own ``supersample``
+        (Cycles' 4 at 2x are 16 at 1x, 2 at 3x)."""
         cal = dict(self.calibrated.get(quality.paper_level) or {}) if quality.calibrated else {}
         mine = options.model_fields_set
         if cal.get("denoise") and "denoise" in mine and not options.denoise:
@@ -166,7 +166,8 @@ class BackendPlugin:
         if getattr(quality, "control", "samples") == "error":
             # an error target renders an image at its own resolution, with the samples its target
             # asks for, drawn as the preset draws them (``sampling_options``)
-            return {k: v for k, v in cal.items() if k not in ("samples", "supersample", *self.sampling_options)}
+            drawn = ("samples", "supersample", *self.sampling_options)
+            return {k: v for k, v in cal.items() if k not in drawn}
         if "samples" in mine:
             cal.pop("supersample", None)
         elif "supersample" in mine and "samples" in cal:
@@ -177,14 +178,15 @@ class BackendPlugin:
 
     def error_target(self, options: Any, quality: Any):
         """``quality.control: error``: the paper preset's samples (whose error is the target), the
-        samples per render of the first pair (the spec's own ``options``' samples, else half the
-        level's calibrated samples, rounded up, times the pixels a calibrated supersampled render traces per
-        pixel of the image: the first pair costs what one calibrated render does, each as the
-        renderer takes it) and the image's budget: ``quality.max_samples``, else ``BUDGET_FACTOR``
-        times the preset's samples, spent past those only by an image not at its target within
-        them (``ErrorTarget.soft_samples``). ``quality.max_samples`` is a bound, never
-        raised: the first pair is made smaller to fit it, and a budget no pair of the renderer's
-        counts fits is a ValueError (``validate`` reports it)."""
+        samples per render of the first pair (the spec's own ``options``' samples, else half,
+        rounded up, of the samples a calibrated render traces per pixel of the image, its count
+        times the F^2 pixels of its ``supersample``: the first pair costs what one calibrated
+        render does, each as the renderer takes it) and the image's budget:
+        ``quality.max_samples``, else ``BUDGET_FACTOR`` times the preset's samples, spent past
+        those only by an image not at its target within them (``ErrorTarget.soft_samples``).
+        ``quality.max_samples`` is a bound, never raised: the first pair is made smaller to fit it,
+        and a budget no pair of the renderer's counts fits is a ValueError (``validate`` reports
+        it)."""
         from .model.error import BUDGET_FACTOR, ErrorTarget, per_render, taken
 
         paper = quality.resolved().samples

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])  # luminance of linear Rec.709 / sRGB primaries
+
 
 class NonFiniteRender(RuntimeError):
     pass

@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.colour import kelvin_rgb, linear_to_srgb, linear_to_srgb8, srgb_to_linear
+from ..model.colour import REC709_LUMA, kelvin_rgb, linear_to_srgb, linear_to_srgb8, srgb_to_linear
 from ..spec.models import DepthSensor, Sensor
 
-REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
 AWB_GAINS = (0.2, 5.0)  # a camera's AWB range: about 2000 K to 12000 K under one light
 MIDDLE_GREY = 0.18
 AE_RANGE = (1.0 / 16.0, 16.0)

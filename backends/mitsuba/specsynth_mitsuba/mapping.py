@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from specsynth.model.colour import REC709_LUMA
 from specsynth.spec.models import QualityPreset
 
 # Mitsuba's envmap is Y-up with its own longitude origin; these rows make a Z-up world map the
@@ -284,7 +285,7 @@ def sky_scale(strength: float, turbidity: float, elevation: float = 45.0) -> flo
 
 
 def luminance(rgb) -> float:
-    return 0.2126 * float(rgb[0]) + 0.7152 * float(rgb[1]) + 0.0722 * float(rgb[2])
+    return float(np.asarray(rgb, dtype=np.float64)[:3] @ REC709_LUMA)
 
 
 def light_power(kind: str, power: float, color, spot_angle_deg: float = 180.0) -> float | None:

@@ -335,7 +335,7 @@ def sampling_weights(scene: RenderScene, meshes: dict[str, MeshData], mode: str,
 def _texture_mean(mi, decoded: DecodedTextures) -> Callable[[str], float]:
     def mean(path: str) -> float:
         rgb = decoded.linear(mi, path)
-        return float(mapping.luminance(rgb.reshape(-1, rgb.shape[-1])[:, :3].mean(axis=0)))
+        return mapping.luminance(rgb.reshape(-1, rgb.shape[-1]).mean(axis=0))
     return mean
 
 
