@@ -248,6 +248,18 @@ def test_triangles_naming_a_vertex_twice_are_dropped_not_fatal(backend, meshes, 
 
 
 @pytest.mark.slow
+def test_light_sampling_and_caustics_are_pinned_not_left_to_blenders_defaults(backend):
+    """The light tree and both caustics are what every measurement of the levels was made with
+    (docs/backends/cycles.md): set by the backend, so a Blender release with other defaults
+    renders the same images."""
+    cy = backend._bpy.context.scene.cycles
+    cy.use_light_tree, cy.caustics_reflective, cy.caustics_refractive = False, False, False
+    backend._configure_static()
+    assert (cy.use_light_tree, cy.caustics_reflective, cy.caustics_refractive) == (True, True, True)
+    assert (cy.blur_glossy, cy.sample_clamp_direct, cy.pixel_filter_type) == (0.0, 0.0, "BOX")
+
+
+@pytest.mark.slow
 def test_same_job_is_byte_identical(backend, meshes):
     backend.load(_lit_scene(meshes))
     cam = camera()
