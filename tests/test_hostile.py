@@ -132,6 +132,58 @@ def test_a_fifo_as_an_object_mesh_or_a_scene_file_is_refused(tmp_path):
     assert r.returncode == 2 and "scenes.0.file" in r.stderr and "FIFO" in r.stderr
 
 
+GLTF_FIFO_BUFFER = {"asset": {"version": "2.0"}, "buffers": [{"uri": "pipe.bin", "byteLength": 36}],
+                    "bufferViews": [{"buffer": 0, "byteLength": 36}],
+                    "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                                   "min": [0, 0, 0], "max": [1, 1, 0]}],
+                    "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+                    "scenes": [{"nodes": [0]}], "scene": 0}
+
+
+@pytest.mark.parametrize("names", ["mtllib", "map_Kd", "glTF buffer"])
+@pytest.mark.parametrize("command", ["validate", "build"])
+def test_an_object_mesh_naming_a_fifo_is_refused_at_its_spec_line(tmp_path, names, command):
+    """A spec's own mesh is checked as a scene file's is: what it names must be a regular file in
+    its folder. Unchecked, trimesh opened the FIFO and the build hung."""
+    spec = obj_scene(tmp_path / "s")
+    folder = spec.parent
+    if names == "glTF buffer":
+        (folder / "mine.gltf").write_text(json.dumps(GLTF_FIFO_BUFFER))
+        os.mkfifo(folder / "pipe.bin")
+        mesh = "mine.gltf"
+    else:
+        mtl = "newmtl m\nKd 0.8 0.8 0.8\nmap_Kd pipe.png\n"
+        (folder / "mine.obj").write_text(OBJ.replace("table.mtl", "pipe.mtl" if names == "mtllib" else "mine.mtl")
+                                         .replace("usemtl wood", "usemtl m"))
+        (folder / "mine.mtl").write_text(mtl)
+        os.mkfifo(folder / ("pipe.mtl" if names == "mtllib" else "pipe.png"))
+        mesh = "mine.obj"
+    extra = ("--out", tmp_path / "out", "--quiet") if command == "build" else ()
+    r = cli(command, spec, *extra, "--set", f"objects.meshes=[{{path: {mesh}, unit: m}}]", timeout=90)
+    assert r.returncode == 2, r.stderr
+    assert "objects.meshes.0.path" in r.stderr and "FIFO" in r.stderr and "pipe." in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_an_object_mesh_that_is_not_a_mesh_is_refused_at_its_spec_line(tmp_path):
+    spec = obj_scene(tmp_path / "s")
+    (spec.parent / "notes.ply").write_text("SECRET_TOKEN: a text file named like a mesh\n")
+    msg = one_message(spec, "objects.meshes=[{path: notes.ply, unit: m}]")
+    assert "objects.meshes.0.path" in msg and "does not start like a PLY file" in msg and "SECRET_TOKEN" not in msg
+
+
+def test_a_corrupt_object_mesh_is_named_without_quoting_its_bytes(tmp_path):
+    spec = obj_scene(tmp_path / "s")
+    (spec.parent / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                                         "property float y\nproperty float z\nelement face 1\n"
+                                         "property list uchar int vertex_indices\nend_header\n"
+                                         "0 0 0\nSECRET_TOKEN 1 0\n0 1 0\n3 0 1 2\n")
+    r = cli("build", spec, "--out", tmp_path / "out", "--quiet", "--set", "objects.meshes=[{path: bad.ply, unit: m}]",
+            timeout=120)
+    assert r.returncode != 0 and "bad.ply" in r.stderr and "corrupt PLY" in r.stderr
+    assert "SECRET_TOKEN" not in r.stderr + r.stdout and "Traceback" not in r.stderr
+
+
 @pytest.mark.parametrize("statement", ["mtllib", "map_Kd", "map_Pr", "map_Bump"])
 @pytest.mark.parametrize("command", ["validate", "build", "show"])
 def test_an_obj_naming_a_fifo_is_refused_by_every_command(tmp_path, statement, command):

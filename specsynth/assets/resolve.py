@@ -42,6 +42,7 @@ from .library.hdris import (
     studiolights_dir,
 )
 from .meshfiles import bake, ply, single
+from .meshfiles import gltf as gltf_reader
 from .meshfiles import obj as obj_reader
 from .meshfiles import urdf as urdf_reader
 from .meshfiles.part import MeshFileError, read_file, referenced_file
@@ -415,6 +416,7 @@ class _Source:
     unit: str
     label: str  # for messages and ObjectAsset.source
     builtin: _Builtin | None = None
+    field: str | None = None  # the spec field that names the file, where the spec names one
 
     def files(self) -> list[Path]:
         """Every file whose bytes determine the converted asset (fast: no mesh parsing)."""
@@ -435,7 +437,9 @@ class _Source:
                         out += _mesh_and_material_files(vis.mesh, self.label)
                 return out
             return _mesh_and_material_files(root / b.mesh, self.label)
-        files = [self.path]
+        files = _own_mesh_files(self.path, self.label, self.field) if self.kind == "mesh" else [self.path]
+        if self.path.suffix.lower() != ".ply":
+            return files
         tex = _bop_texture_path(self.path)
         if tex is not None:
             check_texture(tex, self.label)
@@ -454,6 +458,23 @@ class _Source:
         if self.kind == "catalogue":  # one archive holds many models
             params["item"] = self.name
         return _hash_json(params)
+
+
+def _own_mesh_files(mesh: Path, what: str, field: str | None) -> list[Path]:
+    """A spec's own mesh file and every file it names (an OBJ's material libraries and maps, a
+    glTF's buffers and images), each checked as scene files' are: in the mesh's folder, a regular
+    file (a FIFO would hang the reader), an image within the pixel limit."""
+    require_file(mesh, what)
+    try:
+        check_mesh_file(mesh, what)
+        suffix = mesh.suffix.lower()
+        if suffix == ".obj":
+            return obj_reader.source_files(mesh)
+        if suffix in (".gltf", ".glb"):
+            return gltf_reader.source_files(mesh)
+        return [mesh]
+    except MeshFileError as e:
+        raise AssetError(str(e), field=field) from None
 
 
 def _mesh_and_material_files(mesh: Path, what: str) -> list[Path]:
@@ -555,16 +576,17 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
             used.add(i)
     builtins = [b if isinstance(b, spec_mod.BuiltinObject) else spec_mod.BuiltinObject(name=b)
                 for b in objects.builtin]
-    pending: list[tuple[str, object]] = [("builtin", b) for b in builtins] + [("mesh", m) for m in objects.meshes]
+    pending: list[tuple[str, object, str]] = ([("builtin", b, "objects.builtin") for b in builtins]
+                                              + [("mesh", m, f"objects.meshes.{j}.path") for j, m in enumerate(objects.meshes)])
     # Explicit ids first so that automatic ones never collide with an id given later in the list.
-    for _, item in pending:
+    for _, item, _ in pending:
         if item.obj_id is not None:
             if item.obj_id in used:
                 raise AssetError(f"obj_id {item.obj_id} is used twice (by {getattr(item, 'name', None) or item.path})")
             used.add(item.obj_id)
     next_id = max(used, default=0) + 1
     names = {s.name for s in out}
-    for kind, item in pending:
+    for kind, item, field in pending:
         oid = item.obj_id
         if oid is None:
             oid = next_id
@@ -578,8 +600,11 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
             src = _Source(item.name, "builtin", oid, path, "m", f"pybullet_data:{item.name}", b)
         else:
             p = expand_path(item.path, spec_dir, f"mesh {item.path!r}")
-            require_file(p, f"mesh {item.path!r}")
-            src = _Source(item.name or f"obj_{oid:06d}", "mesh", oid, p, item.unit, str(p))
+            try:
+                require_file(p, f"mesh {item.path!r}")
+            except AssetError as e:
+                raise AssetError(str(e), field=field) from None
+            src = _Source(item.name or f"obj_{oid:06d}", "mesh", oid, p, item.unit, str(p), field=field)
         if src.name in names:
             raise AssetError(f"object name {src.name!r} appears twice in 'objects'")
         names.add(src.name)

@@ -188,10 +188,17 @@ def check_images(path: Path, doc: dict, binary: bytes | None, refs: dict[str, Pa
 def _checked(path: Path) -> tuple[dict, dict[str, Path]]:
     """(document, uri -> file) once nodes, references and images have been checked."""
     doc, binary = _document(path)
+    check_extensions(path, doc)
     node_matrices(path, doc)
     refs = _referenced(path, doc)
     check_images(path, doc, binary, refs)
     return doc, refs
+
+
+def checked_references(path: Path) -> dict[str, Path]:
+    """uri -> file of every external buffer and image, once the document is checked: what a
+    resolver handed to trimesh may serve (:func:`.part.checked_resolver`)."""
+    return _checked(path)[1]
 
 
 def source_files(path: Path) -> list[Path]:
@@ -296,7 +303,6 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
     import trimesh
 
     doc, refs = _checked(path)  # before trimesh reads anything; it is then handed only the checked files
-    check_extensions(path, doc)
     try:
         scene = trimesh.load(str(path), force="scene", process=False, resolver=checked_resolver(path, refs))
     except Exception as e:  # trimesh raises many types for broken files

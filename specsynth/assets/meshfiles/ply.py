@@ -130,7 +130,9 @@ def ply_to_mesh(path: Path) -> tuple[MeshData, str | None]:
     except MeshFileError:
         raise
     except (ValueError, IndexError, KeyError, UnicodeDecodeError) as e:
-        raise MeshFileError(f"{path}: corrupt PLY: {e}") from e
+        # The exception's text can quote the file's bytes ("could not convert string to float:
+        # b'...'"): an error names what is wrong, never what the file holds.
+        raise MeshFileError(f"{path}: corrupt PLY ({type(e).__name__}: its data does not match its header)") from None
     if not {"x", "y", "z"} <= set(v):
         raise MeshFileError(f"{path}: PLY has no vertex x/y/z (empty or corrupt mesh)")
     verts = np.stack([v["x"], v["y"], v["z"]], 1)

@@ -1,4 +1,7 @@
-"""STL, OFF and other single-material formats trimesh reads -> one MeshData in the file's units."""
+"""A mesh file trimesh reads -> one MeshData in the file's units: STL, OFF, and a spec's own OBJ or
+glTF as one mesh (its materials are the spec's). An OBJ's or glTF's references are checked first
+and trimesh is handed only those files (:func:`.part.checked_resolver`): a FIFO or a file outside
+the mesh's folder is an error, never opened."""
 
 from __future__ import annotations
 
@@ -7,14 +10,31 @@ from pathlib import Path
 import numpy as np
 
 from ..meshio import MeshData
-from .part import MeshFileError
+from . import gltf, obj
+from .part import MeshFileError, checked_resolver
+
+
+def _resolver(path: Path):
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        files = {name: lib for name, lib in obj.mtl_libraries(path) if lib.is_file()}
+        for lib in list(files.values()):
+            for lineno, name in obj.map_statements(lib):
+                tex = obj.texture_file(lib, name, lineno)
+                if tex is not None:
+                    files[name] = tex
+        return checked_resolver(path, files)
+    if suffix in (".gltf", ".glb"):
+        return checked_resolver(path, gltf.checked_references(path))
+    return None
 
 
 def read_single(path: Path) -> MeshData:
     import trimesh
 
+    resolver = _resolver(path)
     try:
-        loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=False)
+        loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=False, resolver=resolver)
     except Exception as e:  # trimesh raises a zoo of types for broken files
         raise MeshFileError(f"{path}: cannot read mesh ({type(e).__name__})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0 or len(loaded.faces) == 0:
