@@ -16,6 +16,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from .atomic import atomic_write_bytes
+from .files import output_file, read_regular
 from .spec.yamlio import SpecError, load_spec
 
 SCHEMA_PATH = Path("schemas") / "dataset-spec.schema.json"
@@ -63,10 +65,10 @@ def cmd_schema(args) -> int:
     if args.stdout:
         sys.stdout.write(text)
         return 0
-    out = Path(args.out)
+    out = output_file(args.out, "--out")
     out.parent.mkdir(parents=True, exist_ok=True)
-    if not out.exists() or out.read_text() != text:
-        out.write_text(text)
+    if not out.is_file() or out.stat().st_size != len(text.encode()) or read_regular(out).decode(errors="replace") != text:
+        atomic_write_bytes(out, text.encode())
         print(f"wrote {out}")
     return 0
 
@@ -75,9 +77,9 @@ def cmd_compile(args) -> int:
     _, graph = _compile(args.spec, args.set)
     summary = graph.summary()
     if args.jobs_out:
-        with open(args.jobs_out, "w") as f:
-            for j in graph.jobs():
-                f.write(json.dumps({"stage": j.stage, "id": j.id, "key": j.key, "seed": j.seed, "upstream": j.upstream}) + "\n")
+        lines = (json.dumps({"stage": j.stage, "id": j.id, "key": j.key, "seed": j.seed, "upstream": j.upstream})
+                 for j in graph.jobs())
+        atomic_write_bytes(output_file(args.jobs_out, "--jobs-out"), "".join(f"{ln}\n" for ln in lines).encode())
         summary["jobs_file"] = args.jobs_out
     print(json.dumps(summary, indent=2, sort_keys=True))
     return 0

@@ -23,7 +23,31 @@ _KINDS = (
 
 
 class UnsafeOutput(RuntimeError):
-    """A symbolic link inside an output folder would carry writes or deletes outside it."""
+    """A symbolic link inside an output folder would carry writes or deletes outside it, or the
+    path given to write into is not a folder (or, for a file, not a regular file)."""
+
+
+def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:
+    """``path`` as a folder a command may create and write into: refused when a file, a FIFO or a
+    device is there, or when it is the file system's root (whose walk for links reaches /proc)."""
+    p = Path(path)
+    if os.path.exists(p) and not os.path.isdir(p):
+        kind = (not_a_file(p) or "a file").removesuffix(", not a regular file")
+        raise UnsafeOutput(f"{what} {p}: {kind}, not a folder; give a folder to write into")
+    if Path(os.path.realpath(p)) == Path(os.path.realpath(p)).parent:
+        raise UnsafeOutput(f"{what} {p}: the root of the file system; give a folder of its own to write into")
+    return p
+
+
+def output_file(path: str | os.PathLike, what: str) -> Path:
+    """``path`` as a file a command may (re)write: refused when something other than a regular file
+    is there (a FIFO would block the writer, a device swallow or fill it, a folder not be a file).
+    Write it atomically (:mod:`specsynth.atomic`): a link there is then replaced, not followed."""
+    p = Path(path)
+    problem = not_a_file(p)
+    if os.path.lexists(p) and problem not in (None, "not found"):
+        raise UnsafeOutput(f"{what} {p}: {problem}; give the path of a regular file to write")
+    return p
 
 
 def not_a_file(path: str | os.PathLike) -> str | None:
@@ -79,5 +103,5 @@ def refuse_links_out(folder: Path) -> None:
         for name in dirs + files:
             p = Path(top) / name
             if p.is_symlink() and not inside(p, root):
-                raise UnsafeOutput(f"{p}: a symbolic link out of the output folder (to {p.resolve()}); "
+                raise UnsafeOutput(f"{p}: a symbolic link out of the output folder (to {os.path.realpath(p)}); "
                                    "remove it or give another folder")

@@ -184,6 +184,69 @@ def test_a_corrupt_object_mesh_is_named_without_quoting_its_bytes(tmp_path):
     assert "SECRET_TOKEN" not in r.stderr + r.stdout and "Traceback" not in r.stderr
 
 
+@pytest.mark.parametrize("target", ["fifo", "/dev/full", "folder"])
+@pytest.mark.parametrize("command", ["schema", "compile"])
+def test_a_file_to_write_that_is_not_a_regular_file_is_refused(tmp_path, target, command):
+    """`schema --out /dev/full` read the device to compare it with the schema until memory ran
+    out, and a FIFO as `--out` or `--jobs-out` blocked the writer."""
+    spec = obj_scene(tmp_path / "s")
+    path = {"fifo": tmp_path / "pipe.json", "folder": tmp_path}.get(target, Path(target))
+    if target == "fifo":
+        os.mkfifo(path)
+    args = ("schema", "--out", path) if command == "schema" else ("compile", spec, "--jobs-out", path)
+    r = cli(*args, timeout=60)
+    said = "a folder, not a file" if target == "folder" else "not a regular file"
+    assert r.returncode == 2 and str(path) in r.stderr and said in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_schema_and_jobs_files_are_written_and_a_link_there_is_replaced_not_followed(tmp_path):
+    spec = obj_scene(tmp_path / "s")
+    outside = tmp_path / "outside.json"
+    outside.write_text("keep")
+    (tmp_path / "jobs.jsonl").symlink_to(outside)
+    r = cli("compile", spec, "--jobs-out", tmp_path / "jobs.jsonl", timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert outside.read_text() == "keep" and not (tmp_path / "jobs.jsonl").is_symlink()
+    jobs = [json.loads(line) for line in (tmp_path / "jobs.jsonl").read_text().splitlines()]
+    assert jobs and {"stage", "id", "key", "seed", "upstream"} <= set(jobs[0])
+    r = cli("schema", "--out", tmp_path / "schema.json", timeout=60)
+    assert r.returncode == 0 and json.loads((tmp_path / "schema.json").read_text())["title"]
+
+
+@pytest.mark.parametrize("target, says", [("file", "a file, not a folder"), ("/dev/null", "a character device, not a folder"),
+                                          ("/", "the root of the file system")])
+def test_an_out_that_is_not_a_folder_is_refused_before_any_work(tmp_path, target, says):
+    spec = obj_scene(tmp_path / "s")
+    path = tmp_path / "afile" if target == "file" else Path(target)
+    if target == "file":
+        path.write_text("mine")
+    r = cli("build", spec, "--out", path, "--quiet", timeout=60)
+    assert r.returncode == 2 and f"--out {path}: {says}" in r.stderr, r.stderr
+    assert target != "file" or path.read_text() == "mine"
+
+
+@pytest.mark.parametrize("last_line, says", [("name: " + "[" * 600 + "]" * 600, "nested deeper than 64 levels"),
+                                             ("seed: " + "9" * 5000, "an integer of 5,000 characters")])
+def test_a_spec_nested_too_deep_or_with_an_endless_number_is_a_located_error(tmp_path, last_line, says):
+    """600 nested brackets (1.5 KB) raised RecursionError and a 5000-digit seed Python's
+    ValueError, neither naming a line."""
+    spec = obj_scene(tmp_path)
+    spec.write_text(SPEC.replace("name: hostile\n", "") + last_line + "\n")
+    r = cli("validate", spec, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "Error" not in r.stderr, r.stderr
+    assert f"{spec}:{len(spec.read_text().splitlines())}:" in r.stderr and says in r.stderr
+
+
+def test_a_scene_file_or_a_set_value_nested_too_deep_is_refused(tmp_path):
+    spec = obj_scene(tmp_path)
+    (tmp_path / "deep.yaml").write_text("name: s\nmeshes: " + "[" * 600 + "]" * 600 + "\n")
+    r = cli("validate", spec, "--set", "scenes=[{file: deep.yaml}]", timeout=60)
+    assert r.returncode == 2 and f"{tmp_path / 'deep.yaml'}:2:" in r.stderr and "nested deeper" in r.stderr, r.stderr
+    r = cli("validate", spec, "--set", "name=" + "[" * 600 + "]" * 600, timeout=60)
+    assert r.returncode == 2 and "--set name" in r.stderr and "nested deeper" in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("statement", ["mtllib", "map_Kd", "map_Pr", "map_Bump"])
 @pytest.mark.parametrize("command", ["validate", "build", "show"])
 def test_an_obj_naming_a_fifo_is_refused_by_every_command(tmp_path, statement, command):

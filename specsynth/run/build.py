@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from ..files import UnsafeOutput, refuse_links_out
+from ..files import UnsafeOutput, output_folder, refuse_links_out
 from ..plan.compiler import STAGES, JobGraph
 from ..plugins import load_executor
 from .manifest import diff, manifest_of, read_manifest, write_manifest
@@ -109,7 +109,7 @@ def build(graph: JobGraph, out: Path, *, executor: str = "local", jobs: int = 1,
     from .worker import BuildContext
 
     t_build = time.perf_counter()
-    out = Path(out)
+    out = output_folder(out)
     out.mkdir(parents=True, exist_ok=True)
     refuse_links_out(out)
     summary = BuildSummary(out=str(out), backend=graph.backend)

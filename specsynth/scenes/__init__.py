@@ -29,6 +29,7 @@ from ..assets.meshfiles.sniff import check_mesh_file
 from ..assets.meshio import UV_LIMIT, MeshData, read_mesh
 from ..assets.resolve import AssetError
 from ..files import not_a_file, read_regular
+from ..spec.yamlio import shape_problem
 from ..model.conventions import rpy_matrix
 from ..model.ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
 from . import autostage, filemeshes, gltfscene, random_room, surfaces
@@ -159,9 +160,14 @@ def read_scene_file(path: Path) -> SceneFile:
     except OSError as e:
         raise SceneError(f"{path}: cannot read ({e.strerror or type(e).__name__})") from None
     try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        shape = None if path.suffix == ".json" else shape_problem(text)
+        data = None if shape else json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as e:
         raise SceneError(f"{path}{_error_place(e)}: cannot parse ({_error_reason(e)})") from None
+    except (RecursionError, ValueError):  # JSON nested past the parser's depth, an integer past Python's digits
+        raise SceneError(f"{path}: cannot parse (nested too deeply, or a number too long)") from None
+    if shape:
+        raise SceneError(f"{path}:{shape[0]}:{shape[1]}: {shape[2]}")
     if not isinstance(data, dict):
         raise SceneError(f"{path}: a scene file is a mapping (name, meshes, lights, world, stages)")
     if not set(map(str, data)) & set(SceneFile.model_fields):  # some other file: its keys are not quoted back

@@ -20,6 +20,29 @@ from .models import DatasetSpec
 
 # A spec is small: anything that expands beyond this many nodes is an alias bomb, not a spec.
 MAX_EXPANDED_NODES = 100_000
+# Specs and scene files nest a few levels; PyYAML's composer recurses once per level (600 nested
+# brackets raised RecursionError), and Python converts integers of at most 4300 digits.
+MAX_DEPTH = 64
+MAX_DIGITS = 4000
+
+
+def shape_problem(text: str, loader=yaml.SafeLoader) -> tuple[int, int, str] | None:
+    """(line, column, what) of the first place a YAML text nests deeper than ``MAX_DEPTH`` or
+    writes an integer of more than ``MAX_DIGITS`` digits; None when it does neither. Read from
+    PyYAML's event stream, which is parsed without recursion; a syntax error raises YAMLError."""
+    depth = 0
+    for ev in yaml.parse(text, Loader=loader):
+        if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_DEPTH:
+                return ev.start_mark.line + 1, ev.start_mark.column + 1, f"nested deeper than {MAX_DEPTH} levels"
+        elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+        elif (isinstance(ev, yaml.ScalarEvent) and ev.style is None and len(ev.value) > MAX_DIGITS
+              and ev.value.lstrip("+-").replace("_", "").isdigit()):
+            return (ev.start_mark.line + 1, ev.start_mark.column + 1,
+                    f"an integer of {len(ev.value):,} characters (at most {MAX_DIGITS:,} digits)")
+    return None
 
 
 @dataclass(frozen=True)
@@ -103,9 +126,12 @@ def _yaml_problem(file: str, e: yaml.YAMLError) -> Problem:
 
 def parse_yaml(text: str, file: str) -> tuple[Any, dict[tuple, tuple[int, int]]]:
     try:
-        node = yaml.compose(text, Loader=_Loader)
+        shape = shape_problem(text, _Loader)
+        node = None if shape else yaml.compose(text, Loader=_Loader)
     except yaml.YAMLError as e:
         raise SpecError([_yaml_problem(file, e)]) from None
+    if shape:
+        raise SpecError([Problem(file, shape[0], shape[1], "", shape[2])])
     if node is None:
         raise SpecError([Problem(file, 1, 1, "", "spec is empty: expected a mapping with 'name', 'objects', 'scenes', 'backend'")])
     positions: dict[tuple, tuple[int, int]] = {}
@@ -147,9 +173,12 @@ def parse_override(item: str) -> tuple[tuple, Any]:
     if not dotted or any(not p for p in dotted.split(".")):
         raise SpecError([Problem("--set", None, None, dotted, "empty field name")])
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        shape = shape_problem(raw) if raw.strip() else None
+        value = yaml.safe_load(raw) if raw.strip() and not shape else ""
     except yaml.YAMLError as e:
         raise SpecError([Problem(f"--set {dotted}", None, None, "", f"cannot parse value {raw!r}: {e}")]) from None
+    if shape:
+        raise SpecError([Problem(f"--set {dotted}", None, None, "", f"cannot take the value: {shape[2]}")])
     path = tuple(int(p) if p.isdigit() else p for p in dotted.split("."))
     return path, value
 
