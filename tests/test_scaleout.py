@@ -375,3 +375,18 @@ def test_pool_workers_exit_when_the_build_is_killed(spec_file, tmp_path):
     while time.time() < deadline and any(_alive(w) for w in workers):
         time.sleep(0.1)
     assert not any(_alive(w) for w in workers)
+
+
+def test_a_job_failing_on_dask_workers_is_reported_once_without_worker_tracebacks(tmp_path):
+    """Distributed's workers logged each failed attempt with its traceback (six copies for one
+    corrupt mesh); the build's own error is the one line a user needs."""
+    pytest.importorskip("distributed")
+    (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                      "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                      "end_header\n0 0 0\nnot-a-number 1 0\n0 1 0\n3 0 1 2\n")
+    spec = tmp_path / "bad.yaml"
+    spec.write_text(SPEC.replace("  builtin: [duck, mug, lego, jenga]", "  meshes: [{path: bad.ply, unit: m}]"))
+    r = subprocess.run([sys.executable, "-m", "specsynth.cli", "build", str(spec), "--out", str(tmp_path / "out"),
+                        "--executor", "dask", "--jobs", "2", "--quiet"], capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "bad.ply: corrupt PLY" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and "Compute Failed" not in r.stderr, r.stderr

@@ -62,9 +62,11 @@ class DaskExecutor:
             import dask
             import yaml
 
+            # Logs below CRITICAL stay quiet: a job that fails is reported by the build itself, once,
+            # where distributed's workers had logged every failed attempt with its traceback.
             with dask.config.set(_dotted(yaml.safe_load((CONFIG_DIR / "specsynth.yaml").read_text()))):
                 self._cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
-                                             dashboard_address=None, silence_logs=40)
+                                             dashboard_address=None, silence_logs=50)
             self.client = Client(self._cluster)
         self._plugin = _plugin_class()(ctx)
         self.client.register_plugin(self._plugin)
