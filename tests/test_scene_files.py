@@ -16,6 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from test_hostile import png_header
+
 from specsynth.assets import meshfiles
 from specsynth.assets.meshio import read_mesh
 from specsynth.scenes import SceneError, load_scene, scene_fingerprint
@@ -163,6 +165,45 @@ def test_editing_one_texture_changes_the_scene_key(byo):
     Image.new("RGB", (8, 8), (10, 200, 10)).save(byo / "wood.png")
     after = scene_fingerprint(SceneRef(file=str(byo / "scene.yaml")), byo)
     assert before != after
+
+
+@pytest.mark.parametrize("change, says", [
+    ("materials: {leg_metl: {base_color: [0.9, 0.1, 0.1]}}", r"meshes.table.materials: 'leg_metl' not in table.obj "
+                                                             r"\(it has: leg_metal, wood_top\)"),
+    ("material: {texture: notes.png}", r"meshes.table: material: texture .*notes.png is unreadable"),
+    ("material: {texture: huge.png}", r"huge.png: over the 67,108,864-pixel limit"),
+])
+def test_validate_reads_a_scene_files_material_names_and_textures_without_loading_it(byo, change, says):
+    """What loading the scene would refuse, found by the scene's key (``validate``) before any
+    geometry is read: a misspelt material name, a text file or an image too large as a texture."""
+    (byo / "notes.png").write_text("SECRET_TOKEN, not an image")
+    png_header(byo / "huge.png", 60000, 60000)
+    text = (byo / "scene.yaml").read_text().replace("    transform: {translation: [0.3, 0.2, 0]}",
+                                                    f"    transform: {{translation: [0.3, 0.2, 0]}}\n    {change}")
+    (byo / "bad.yaml").write_text(text)
+    with pytest.raises(SceneError, match=says) as e:
+        scene_fingerprint(SceneRef(file=str(byo / "bad.yaml")), byo)
+    assert "SECRET_TOKEN" not in str(e.value)
+
+
+@pytest.mark.parametrize("change, says", [
+    ("    transform: {translation: [0.3, 0.2, 0], scale: 1e300}", r"scale must be within 1e-06..1e\+06"),
+    ("    transform: {translation: [0.3, 0.2, 0], scale: [1, 1, 1e-9]}", r"scale must be within"),
+])
+def test_a_scale_no_furniture_has_is_refused(byo, change, says):
+    (byo / "bad.yaml").write_text((byo / "scene.yaml").read_text().replace("    transform: {translation: [0.3, 0.2, 0]}", change))
+    with pytest.raises(SceneError, match=says):
+        scene_fingerprint(SceneRef(file=str(byo / "bad.yaml")), byo)
+
+
+def test_a_light_past_any_lamps_power_is_refused():
+    from pydantic import ValidationError
+
+    from specsynth.scenes.models import LightDef
+
+    assert LightDef(kind="point", power=2000.0).power == 2000.0
+    with pytest.raises(ValidationError, match="less than or equal to 10000000"):
+        LightDef(kind="point", power=1e308)
 
 
 def test_a_missing_gltf_buffer_is_named(tmp_path):

@@ -573,6 +573,24 @@ def declares_stages(ref, spec_dir: Path) -> bool:
     return not generated_name(ref) and not read_scene_file(_scene_path(ref, spec_dir)).auto_stages
 
 
+def _check_material_names(m: SceneMesh, src: Path | None, scene_path: Path) -> None:
+    """In ``validate``, what loading the scene checks against the parts it reads: every name in a
+    mesh's ``materials:`` is a material of its file (read here without the geometry)."""
+    if not m.materials or src is None or not src.is_file():
+        return
+    what = f"{scene_path}: meshes.{m.name}"
+    if not filemeshes.is_multi_material(src):
+        raise SceneError(f"{what}.materials: only glTF and OBJ files have named materials")
+    try:
+        known = meshfiles.material_names(src)
+    except MeshFileError as e:
+        raise AssetError(str(e)) from None
+    unknown = sorted(set(m.materials) - known)
+    if unknown:
+        have = ", ".join(sorted(known - {"default"})[:12]) + (", ..." if len(known) > 13 else "")
+        raise SceneError(f"{what}.materials: {', '.join(map(repr, unknown))} not in {src.name} (it has: {have})")
+
+
 def scene_fingerprint(ref, spec_dir: Path) -> str:
     """Content hash of a scene: its file and every file it references (no mesh conversion). A
     procedural scene's: its generator and the asset libraries it draws from."""
@@ -597,12 +615,14 @@ def scene_fingerprint(ref, spec_dir: Path) -> str:
     files = [path]
     for m in sf.meshes:
         try:
-            files += _source_files(m, path)[1]
+            src, used, _ = _source_files(m, path)
+            files += used
+            _check_material_names(m, src, path)
             for mat in (m.material, *m.materials.values()):
-                if mat.texture is not None:
-                    files.append(assets.resolve_data_ref(mat.texture, path.parent, f"{path}: meshes.{m.name}"))
-                if mat.emission_texture is not None:
-                    files.append(assets.resolve_data_ref(mat.emission_texture, path.parent, f"{path}: meshes.{m.name}"))
+                for image in (mat.texture, mat.emission_texture):
+                    if image is not None:  # an image within the pixel limit, checked from its header
+                        files.append(assets.resolve_data_ref(image, path.parent, f"{path}: meshes.{m.name}"))
+                        assets.check_texture(files[-1], "material")
                 if mat.normal_map is not None:
                     files.append(surfaces.resolve_normal_map(mat.normal_map, path.parent, f"{path}: meshes.{m.name}"))
         except SceneError:

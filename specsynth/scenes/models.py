@@ -109,6 +109,10 @@ Source = Annotated[
 ]
 
 
+MIN_SCALE, MAX_SCALE = 1e-6, 1e6
+MAX_LIGHT_POWER = 1e7  # W (W/m^2 for a sun): far past any lamp (a stadium floodlight draws ~2 kW)
+
+
 class Transform(_Strict):
     """Mesh placement: vertices are scaled, then rotated, then translated (world = T R S model)."""
 
@@ -136,6 +140,8 @@ class Transform(_Strict):
         s = (v,) * 3 if isinstance(v, (int, float)) else v
         if min(s) <= 0:
             raise ValueError("scale must be > 0 (mirroring is not supported)")
+        if min(s) < MIN_SCALE or max(s) > MAX_SCALE:  # past these a mesh is a speck or a world, not furniture
+            raise ValueError(f"scale must be within {MIN_SCALE:g}..{MAX_SCALE:g}")
         return v
 
 
@@ -214,7 +220,7 @@ class SceneMesh(_Strict):
 class LightDef(_Strict):
     kind: Literal["area", "point", "spot", "sun"]
     power: float = Field(
-        gt=0, description="Watts for area/point/spot (Blender semantics); W/m^2 irradiance for sun."
+        gt=0, le=MAX_LIGHT_POWER, description="Watts for area/point/spot (Blender semantics); W/m^2 irradiance for sun."
     )
     color: Color = Field((1.0, 1.0, 1.0), description="Linear RGB.")
     translation: Vec3 = Field((0.0, 0.0, 0.0), description="Metres (irrelevant for sun).")

@@ -22,7 +22,8 @@ from .part import MAX_TRIANGLES, MeshFileError, Part
 
 MULTI_MATERIAL_SUFFIXES = (".glb", ".gltf", ".obj")
 
-__all__ = ["MAX_TRIANGLES", "MULTI_MATERIAL_SUFFIXES", "MeshFileError", "Part", "read_parts", "source_files"]
+__all__ = ["MAX_TRIANGLES", "MULTI_MATERIAL_SUFFIXES", "MeshFileError", "Part", "material_names", "read_parts",
+           "source_files"]
 
 
 def read_parts(path: Path, texture_cache: Path) -> list[Part]:
@@ -42,3 +43,16 @@ def source_files(path: Path) -> list[Path]:
     if path.suffix.lower() == ".obj":
         return obj.source_files(path)
     return [path]
+
+
+def material_names(path: Path) -> set[str]:
+    """The names a scene file's ``materials:`` may give for a glTF or OBJ file, read without its
+    geometry: a glTF's materials, an OBJ's ``usemtl`` and ``newmtl`` names; and ``default``, what
+    a part without a named material is called (:func:`read_parts`)."""
+    path = Path(path)
+    if path.suffix.lower() in (".glb", ".gltf"):
+        return {"default", *(str(m.get("name") or "default") for m in gltf.items(path, gltf.gltf_json(path), "materials"))}
+    if path.suffix.lower() == ".obj":
+        return {"default", *obj.usemtl_names(path), *obj.materials_of(path)}
+    return {"default"}
+

@@ -127,6 +127,11 @@ def mtllib_statements(obj_path: Path) -> list[tuple[int, str]]:
             for m in re.finditer(r"^[ \t]*mtllib[ \t]+(.+?)[ \t]*$", text, re.M)]
 
 
+def usemtl_names(obj_path: Path) -> set[str]:
+    """Every material name an OBJ's ``usemtl`` statements give."""
+    return {m.group(1) for m in re.finditer(r"^[ \t]*usemtl[ \t]+(.+?)[ \t]*$", _text(obj_path), re.M)}
+
+
 def mtl_libraries(obj_path: Path) -> list[tuple[str, Path]]:
     """(name as written, file) of each material library an OBJ names; a missing one is returned
     as the path it would have (its parts then render grey). A named library that is missing while
