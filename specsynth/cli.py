@@ -34,6 +34,31 @@ def _compile(spec_path: str, overrides: list[str]):
     return loaded, compile_spec(loaded)
 
 
+
+class UsageError(ValueError):
+    """An argument that cannot work, found before the work it would spoil (exit status 2)."""
+
+
+def _number(kind, test, says):
+    """An argparse type: ``kind`` of the text, refused with ``says`` unless ``test`` holds (NaN never does)."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not test(value):
+            raise argparse.ArgumentTypeError(f"{text!r}: {says}")
+        return value
+    return parse
+
+
+POSITIVE = _number(int, lambda v: v >= 1, "at least 1")
+CORES = _number(int, lambda v: v >= 0, "0 (the cores) or more")
+SHARE = _number(float, lambda v: 0.0 <= v <= 1.0, "a share within 0..1")
+DISTANCE = _number(float, lambda v: 0.0 <= v < float("inf"), "a finite distance of 0 or more")
+SCALE = _number(float, lambda v: 0.0 < v <= 16.0, "a scale over 0 and at most 16")
+
+
 def cmd_validate(args) -> int:
     from .plan.compiler import compile_spec
 
@@ -60,7 +85,14 @@ def _print_notes(graph, args=None) -> None:
 def cmd_schema(args) -> int:
     from .spec.models import json_schema
 
-    backends = tuple(args.backends.split(",")) if args.backends else None
+    backends = tuple(b.strip() for b in args.backends.split(",")) if args.backends else None
+    if backends:
+        from .plugins import installed_backend_plugins
+
+        unknown = sorted(set(backends) - {p.name for p in installed_backend_plugins()})
+        if unknown:
+            raise UsageError(f"--backends: {', '.join(unknown)} not installed (installed: "
+                             f"{', '.join(sorted(p.name for p in installed_backend_plugins()))})")
     text = json.dumps(json_schema(backends), indent=2, sort_keys=True) + "\n"
     if args.stdout:
         sys.stdout.write(text)
@@ -226,7 +258,7 @@ def cmd_scenes(args) -> int:
         if not args.name:
             print("error: scenes preview needs a scene name (see `specsynth scenes`)", file=sys.stderr)
             return 2
-        preview_scene(args.name, args.backend, Path(args.out), width=args.width, height=args.width * 3 // 4,
+        preview_scene(args.name, args.backend, _image_out(args.out), width=args.width, height=args.width * 3 // 4,
                       samples=args.samples, variant=args.seed, stages=not args.no_stages, denoise=args.denoise)
         print(f"wrote {args.out}")
         return 0
@@ -254,6 +286,15 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+def _image_out(path: str) -> Path:
+    """``--out`` of a command that writes one image, checked before the work: a regular file (or
+    nothing yet) whose name says PNG or JPEG."""
+    out = output_file(path, "--out")
+    if out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise UsageError(f"--out {out}: an image file name ending in .png or .jpg")
+    return out
+
+
 def _scene_asset_count(name: str) -> int:
     """Meshes of a declared built-in scene; for a procedural one, the furniture models it draws from."""
     from .scenes import BUILTIN_DIR, generated_name, procedural_name, read_scene_file
@@ -276,6 +317,7 @@ def _show_scene(args) -> int:
     if not args.name:
         print("error: scenes show needs a built-in scene name or a scene file", file=sys.stderr)
         return 2
+    out = _image_out(args.out if args.out != "scene.png" else "scene_top.png")
     desc = load_scene(args.name, Path.cwd(), clearance=args.clearance)
     t = Table(title=f"stages of {args.name}" + ("" if args.clearance is None else f" (clearance {args.clearance} m)"))
     for col in ("stage", "area m²", "height m", "x range m", "y range m"):
@@ -285,8 +327,9 @@ def _show_scene(args) -> int:
         t.add_row(name, f"{st.area:.3f}", f"{st.height:.3f}", f"{p[:, 0].min():.2f} .. {p[:, 0].max():.2f}",
                   f"{p[:, 1].min():.2f} .. {p[:, 1].max():.2f}")
     Console().print(t)
-    out = Path(args.out if args.out != "scene.png" else "scene_top.png")
-    top_down(desc).save(out)
+    from .atomic import atomic_write_via
+
+    atomic_write_via(out, top_down(desc).save, suffix=out.suffix)  # a link there is replaced, not followed
     print(f"wrote {out} (top-down, stages outlined)")
     return 0
 
@@ -709,9 +752,9 @@ def _spec_commands(sub) -> None:
     p = _with_set(sub.add_parser("build", help="build a dataset"))
     p.add_argument("spec")
     p.add_argument("--out", required=True)
-    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--jobs", type=POSITIVE, default=1, help="worker processes (default 1)")
     p.add_argument("--executor", default="local", help="local (default), dask (a local Dask cluster) or dask://HOST:PORT (a running scheduler)")
-    p.add_argument("--threads", type=int, default=None, help="renderer threads per worker (default: cores / jobs)")
+    p.add_argument("--threads", type=POSITIVE, default=None, help="renderer threads per worker (default: cores / jobs)")
     p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                    help="no progress bars and notes (same as specsynth --quiet build)")
     p.set_defaults(fn=cmd_build)
@@ -729,13 +772,13 @@ def _library_commands(sub) -> None:
     p.add_argument("action", nargs="?", choices=["list", "preview", "show"], default="list")
     p.add_argument("name", nargs="?", help="built-in scene name, or (show) a scene file")
     p.add_argument("--json", action="store_true", help="list: name, stages, asset count as JSON")
-    p.add_argument("--clearance", type=float, default=None,
+    p.add_argument("--clearance", type=DISTANCE, default=None,
                    help="show: free space (m) a found stage needs above it (default 0.6; builds use the "
                         "largest drop height + the largest object)")
     p.add_argument("--backend", default=None, help="an installed backend that draws scenes (default: the first)")
     p.add_argument("--out", default="scene.png")
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--samples", type=int, default=32)
+    p.add_argument("--width", type=POSITIVE, default=640)
+    p.add_argument("--samples", type=POSITIVE, default=32)
     p.add_argument("--seed", type=int, default=None, help="preview: random_room's seed (a room per seed)")
     p.add_argument("--no-stages", action="store_true", help="preview: the render alone, no stage outlines")
     p.add_argument("--denoise", action="store_true", help="preview: denoise the render")
@@ -766,7 +809,7 @@ def _dataset_commands(sub) -> None:
     p = sub.add_parser("view", help="contact sheet of sampled images with boxes, mask outlines, ids")
     p.add_argument("outs", nargs="+", help="one output folder, or two to compare (e.g. PBR and BL)")
     p.add_argument("--out", required=True, help="PNG file to write")
-    p.add_argument("-n", type=int, default=8)
+    p.add_argument("-n", type=POSITIVE, default=8)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(fn=cmd_view)
 
@@ -778,14 +821,14 @@ def _dataset_commands(sub) -> None:
     p = _with_set(sub.add_parser("bench", help="render time against image error for every installed backend"))
     p.add_argument("spec")
     p.add_argument("--out", required=True)
-    p.add_argument("--views", type=int, default=2)
-    p.add_argument("--repeats", type=int, default=1, help="renders per setting and view (median)")
-    p.add_argument("--ref-factor", type=int, default=4,
+    p.add_argument("--views", type=POSITIVE, default=2)
+    p.add_argument("--repeats", type=POSITIVE, default=1, help="renders per setting and view (median)")
+    p.add_argument("--ref-factor", type=POSITIVE, default=4,
                    help="each part of the reference renders factor / 2 x the high preset's samples")
     p.add_argument("--ref-parts", type=int, default=2,
                    help="independent renders the reference is made of (at least 2; more: a steadier measure of "
                         "one render's error where rare bright samples make most of it)")
-    p.add_argument("--scale", type=float, default=0.25, help="image scale (0.25 = 160x120 for VGA specs)")
+    p.add_argument("--scale", type=SCALE, default=0.25, help="image scale (0.25 = 160x120 for VGA specs)")
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
     p.add_argument("--levels", help="comma-separated quality levels to bench (default low,medium,high)")
     p.add_argument("--ladder", action="store_true",
@@ -802,7 +845,7 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--out", help="folder for compare.json and compare.png")
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument("--models", help="BOP models folder, when a split has no masks and no models/ beside it")
-    p.add_argument("--jobs", type=int, default=0, help="processes measuring images (default: the cores)")
+    p.add_argument("--jobs", type=CORES, default=0, help="processes measuring images (default: the cores)")
     p.add_argument("--own-masks", action="store_true",
                    help="keep the synthetic split's own masks even when the real split's are computed with the "
                         "annotated objects alone as occluders (by default the synthetic side is measured alike, "
@@ -813,7 +856,7 @@ def _dataset_commands(sub) -> None:
     p.add_argument("real", help="a BOP split of real images, e.g. dataset:lmo/test")
     p.add_argument("spec", help="the spec to fit")
     p.add_argument("-o", "--output", required=True, help="the fitted spec to write (YAML, comments kept)")
-    p.add_argument("--probe-images", type=int, default=12,
+    p.add_argument("--probe-images", type=POSITIVE, default=12,
                    help="views rendered to fit the sensor (exposure, blur, noise); 0: fit the cameras only")
     p.add_argument("--models", help="BOP models folder, when the real split has no masks and no models/ beside it")
     p.add_argument("--keep-cameras", action="store_true",
@@ -822,18 +865,18 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--no-object-colours", action="store_true",
                    help="leave the objects' materials as they are (by default each object shown often enough gets "
                         "the colour gain that matches its real colour)")
-    p.add_argument("--jobs", type=int, default=0, help="processes (default: the cores)")
+    p.add_argument("--jobs", type=CORES, default=0, help="processes (default: the cores)")
     p.set_defaults(fn=cmd_fit)
 
     p = sub.add_parser("export", help="convert a built dataset for other tools (yolo: Ultralytics)")
     p.add_argument("format", choices=["yolo"])
     p.add_argument("dataset", help="a build's --out folder (or any folder with a bop/ layout)")
     p.add_argument("dest", help="folder to write (new, empty, or an earlier export)")
-    p.add_argument("--min-visib", type=float, default=0.1,
+    p.add_argument("--min-visib", type=SHARE, default=0.1,
                    help="skip objects less visible than this fraction (default 0.1, COCO's 'ignore')")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--val", metavar="SPLIT", help="use this BOP split as the validation set")
-    g.add_argument("--val-fraction", type=float, default=0.0,
+    g.add_argument("--val-fraction", type=SHARE, default=0.0,
                    help="hold out this fraction of arrangements as the validation set (default 0: val = train)")
     p.set_defaults(fn=cmd_export)
 
@@ -916,7 +959,7 @@ def _run(args) -> int:
         from .run.store import CorruptRecord
 
         if isinstance(e, (AssetError, PluginNotFound, BuildLocked, FileNotFoundError, ExportError, LibraryError,
-                          CorruptRecord, UnsafeOutput, DatasetFileError, SplitError)):
+                          CorruptRecord, UnsafeOutput, DatasetFileError, SplitError, UsageError)):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(f"error: {type(e).__name__}: {e}  (run with --debug for a traceback)", file=sys.stderr)

@@ -247,6 +247,33 @@ def test_a_scene_file_or_a_set_value_nested_too_deep_is_refused(tmp_path):
     assert r.returncode == 2 and "--set name" in r.stderr and "nested deeper" in r.stderr, r.stderr
 
 
+@pytest.mark.parametrize("args, says", [
+    (("build", "{spec}", "--out", "{tmp}/out", "--jobs", "0"), "argument --jobs: '0': at least 1"),
+    (("build", "{spec}", "--out", "{tmp}/out", "--threads", "-1"), "argument --threads: '-1': at least 1"),
+    (("scenes", "show", "room2", "--clearance", "nan"), "argument --clearance: 'nan': a finite distance"),
+    (("bench", "{spec}", "--scale", "0"), "argument --scale: '0': a scale over 0"),
+    (("scenes", "show", "room2", "--out", "{tmp}"), "a folder, not a file"),
+    (("schema", "--backends", "cycles,bogus", "--stdout"), "--backends: bogus not installed"),
+    (("scenes", "show", "room2", "--out", "{tmp}/top.txt"), "an image file name ending in .png or .jpg"),
+])
+def test_impossible_arguments_are_refused_before_any_work(tmp_path, args, says):
+    spec = obj_scene(tmp_path / "s")
+    r = cli(*(a.format(spec=spec, tmp=tmp_path) for a in args), timeout=60)
+    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_plan_refuses_a_link_out_of_its_folder_as_build_does(tmp_path):
+    spec = obj_scene(tmp_path / "s")
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / ".specsynth").symlink_to(tmp_path / "elsewhere")
+    for command in ("plan", "build"):
+        r = cli(command, spec, "--out", tmp_path / "out", timeout=60)
+        assert r.returncode == 2 and "a symbolic link out of the output folder" in r.stderr, (command, r.stderr)
+    assert list((tmp_path / "elsewhere").iterdir()) == []
+
+
 @pytest.mark.parametrize("statement", ["mtllib", "map_Kd", "map_Pr", "map_Bump"])
 @pytest.mark.parametrize("command", ["validate", "build", "show"])
 def test_an_obj_naming_a_fifo_is_refused_by_every_command(tmp_path, statement, command):

@@ -56,7 +56,11 @@ def output_lock(out: Path) -> Iterator[None]:
 
 
 def plan(graph: JobGraph, out: Path) -> dict[str, Any]:
-    """Per stage: jobs that exist, are cached, would run, with an estimated cost in seconds."""
+    """Per stage: jobs that exist, are cached, would run, with an estimated cost in seconds. Reads
+    ``out`` as a build would: a link in it that leads out of it is refused, not followed."""
+    out = output_folder(out)
+    if out.is_dir():
+        refuse_links_out(out)
     store = Store(out)
     done = {s: store.keys(s) for s in STAGES}
     counts = {s: {"jobs": 0, "cached": 0, "to_run": 0} for s in STAGES}

@@ -8,6 +8,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from ..assets.meshio import read_mesh
+from ..atomic import atomic_write_via
 from ..plugins import PluginNotFound, backend_plugin, installed_backend_plugins
 from ..scenes import load_scene
 from ..spec.models import Intrinsics, QualityPreset
@@ -106,5 +107,6 @@ def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 64
     r.close()
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    (draw_stages(res.rgb, scene, cam) if stages else Image.fromarray(res.rgb)).save(dest)
+    image = draw_stages(res.rgb, scene, cam) if stages else Image.fromarray(res.rgb)
+    atomic_write_via(Path(dest), image.save, suffix=Path(dest).suffix)  # a link there is replaced, not followed
     return dest

@@ -101,8 +101,11 @@ def _load_photo(path: Path) -> Image.Image:
     try:
         with Image.open(path) as im:
             return im.convert("RGB")
+    except Image.DecompressionBombError:  # its header claims more pixels than memory should hold
+        raise BackgroundError(f"photo backgrounds: {str(path)!r} claims over {Image.MAX_IMAGE_PIXELS:,} pixels; "
+                              "scale it down or remove it from the folder") from None
     except OSError as e:
-        raise BackgroundError(f"photo backgrounds: cannot decode {str(path)!r}: {e}") from e
+        raise BackgroundError(f"photo backgrounds: cannot decode {str(path)!r} ({type(e).__name__})") from None
 
 
 def _load_exr(path: Path) -> np.ndarray:

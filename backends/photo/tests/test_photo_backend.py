@@ -261,3 +261,20 @@ def test_lights_reach_the_shader_in_drawing_order(scenes, monkeypatch, n_lights)
         b.close()
     for seed, (a, b) in enumerate(zip(*images)):
         assert np.array_equal(a, b), f"seed {seed}: {int((a != b).any(axis=2).sum())} pixels depend on the light order"
+
+
+def test_a_photograph_whose_header_claims_too_many_pixels_is_named_not_decoded(tmp_path):
+    """PIL refuses to decode past its pixel limit with DecompressionBombError, which escaped the
+    pool as a bare exception; it is a BackgroundError naming the file."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0)
+    (tmp_path / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+                                        + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+    pool = BackgroundPool(str(tmp_path))
+    with pytest.raises(BackgroundError, match=r"huge.png' claims over [\d,]+ pixels"):
+        pool.sample(32, 24, np.random.default_rng(0))
