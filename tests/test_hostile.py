@@ -238,6 +238,14 @@ def test_a_spec_nested_too_deep_or_with_an_endless_number_is_a_located_error(tmp
     assert f"{spec}:{len(spec.read_text().splitlines())}:" in r.stderr and says in r.stderr
 
 
+def test_a_nul_byte_in_a_spec_is_placed_by_line_and_column(tmp_path):
+    spec = obj_scene(tmp_path)
+    spec.write_bytes(SPEC.encode() + b"seed: 1\x00\n")
+    r = cli("validate", spec, timeout=60)
+    line = len(SPEC.splitlines()) + 1
+    assert r.returncode == 2 and f"{spec}:{line}:8: YAML syntax error: character U+0000" in r.stderr, r.stderr
+
+
 def test_a_scene_file_or_a_set_value_nested_too_deep_is_refused(tmp_path):
     spec = obj_scene(tmp_path)
     (tmp_path / "deep.yaml").write_text("name: s\nmeshes: " + "[" * 600 + "]" * 600 + "\n")

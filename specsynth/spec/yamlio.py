@@ -114,7 +114,15 @@ class _TooBig(Exception):
     pass
 
 
-def _yaml_problem(file: str, e: yaml.YAMLError) -> Problem:
+def _code(character) -> int:
+    return character if isinstance(character, int) else ord(str(character)[:1] or "\0")
+
+
+def _yaml_problem(file: str, e: yaml.YAMLError, text: str = "") -> Problem:
+    if isinstance(e, yaml.reader.ReaderError):  # a character YAML refuses (NUL, ...): placed by its offset
+        before = text[:e.position]
+        return Problem(file, before.count("\n") + 1, len(before) - (before.rfind("\n") + 1) + 1, "",
+                       f"YAML syntax error: character U+{_code(e.character):04X} is not allowed in YAML text")
     mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
     msg = getattr(e, "problem", None) or str(e)
     ctx = getattr(e, "context", None)
@@ -129,7 +137,7 @@ def parse_yaml(text: str, file: str) -> tuple[Any, dict[tuple, tuple[int, int]]]
         shape = shape_problem(text, _Loader)
         node = None if shape else yaml.compose(text, Loader=_Loader)
     except yaml.YAMLError as e:
-        raise SpecError([_yaml_problem(file, e)]) from None
+        raise SpecError([_yaml_problem(file, e, text)]) from None
     if shape:
         raise SpecError([Problem(file, shape[0], shape[1], "", shape[2])])
     if node is None:
