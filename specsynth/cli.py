@@ -54,6 +54,7 @@ def _number(kind, test, says):
 
 POSITIVE = _number(int, lambda v: v >= 1, "at least 1")
 CORES = _number(int, lambda v: v >= 0, "0 (the cores) or more")
+COUNT = _number(int, lambda v: v >= 0, "0 or more")
 SHARE = _number(float, lambda v: 0.0 <= v <= 1.0, "a share within 0..1")
 DISTANCE = _number(float, lambda v: 0.0 <= v < float("inf"), "a finite distance of 0 or more")
 SCALE = _number(float, lambda v: 0.0 < v <= 16.0, "a scale over 0 and at most 16")
@@ -856,7 +857,7 @@ def _dataset_commands(sub) -> None:
     p.add_argument("real", help="a BOP split of real images, e.g. dataset:lmo/test")
     p.add_argument("spec", help="the spec to fit")
     p.add_argument("-o", "--output", required=True, help="the fitted spec to write (YAML, comments kept)")
-    p.add_argument("--probe-images", type=POSITIVE, default=12,
+    p.add_argument("--probe-images", type=COUNT, default=12,
                    help="views rendered to fit the sensor (exposure, blur, noise); 0: fit the cameras only")
     p.add_argument("--models", help="BOP models folder, when the real split has no masks and no models/ beside it")
     p.add_argument("--keep-cameras", action="store_true",
