@@ -586,7 +586,10 @@ def export(*args) -> tuple[int, str]:
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        rc = main(["export", "yolo", *map(str, args)])
+        try:
+            rc = main(["export", "yolo", *map(str, args)])
+        except SystemExit as e:  # an argument the parser refuses: exit status 2, as from a shell
+            rc = e.code
     return rc, err.getvalue()
 
 
