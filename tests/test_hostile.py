@@ -301,6 +301,12 @@ def test_an_obj_naming_a_fifo_is_refused_by_every_command(tmp_path, statement, c
     assert "FIFO" in r.stderr and "pipe." in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.parametrize("value", ["1e-300", "0", "-1", "1e9"])
+def test_a_depth_scale_no_uint16_depth_can_hold_is_refused_at_its_field(tmp_path, value):
+    (pr,) = problems(obj_scene(tmp_path), f"outputs.depth_scale={value}")
+    assert pr.path == "outputs.depth_scale" and "[0.001, 1000] mm per unit" in pr.message
+
+
 def test_object_counts_are_bounded_before_any_work(tmp_path):
     spec = obj_scene(tmp_path)
     (pr,) = problems(spec, "objects.instances=[1000000,1000000]")

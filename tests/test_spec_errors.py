@@ -56,7 +56,7 @@ CASES = [
     ("bool-as-seed", BASE + "seed: false\n", 8, "seed", "expected a number, got false"),
     ("split-too-long", BASE + "split: " + "a" * 300 + "\n", 8, "split", "at most 64"),
     ("distance-inside-object", BASE + "cameras:\n  distance: [0.000001, 1.0]\n", 9, "cameras.distance", ">= 0.02"),
-    ("depth-scale-absurd", BASE + "outputs:\n  depth_scale: 1.0e+300\n", 9, "outputs.depth_scale", "(0, 1000]"),
+    ("depth-scale-absurd", BASE + "outputs:\n  depth_scale: 1.0e+300\n", 9, "outputs.depth_scale", "[0.001, 1000]"),
     ("photo-lights-reversed", BASE.replace("  name: photo\n", "  name: photo\n  lights: [3, 1]\n"), 8, "backend.lights", "min (3) must be <= max (1)"),
 ]
 

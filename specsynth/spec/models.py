@@ -754,8 +754,8 @@ class Outputs(Strict):
     @field_validator("depth_scale")
     @classmethod
     def _ds(cls, v):
-        if v != "auto" and not (0 < v <= 1000):
-            raise ValueError("depth_scale must be in (0, 1000] mm per unit, or 'auto'")
+        if v != "auto" and not (1e-3 <= v <= 1000):  # 1e-3: uint16 then holds 65.5 mm, as fine as depth gets
+            raise ValueError("depth_scale must be in [0.001, 1000] mm per unit, or 'auto'")
         return v
 
     @model_validator(mode="after")
