@@ -34,7 +34,6 @@ def _compile(spec_path: str, overrides: list[str]):
     return loaded, compile_spec(loaded)
 
 
-
 class UsageError(ValueError):
     """An argument that cannot work, found before the work it would spoil (exit status 2)."""
 
@@ -98,10 +97,10 @@ def cmd_schema(args) -> int:
     if args.stdout:
         sys.stdout.write(text)
         return 0
-    out = output_file(args.out, "--out")
+    out, data = output_file(args.out, "--out"), text.encode()
     out.parent.mkdir(parents=True, exist_ok=True)
-    if not out.is_file() or out.stat().st_size != len(text.encode()) or read_regular(out).decode(errors="replace") != text:
-        atomic_write_bytes(out, text.encode())
+    if not out.is_file() or out.stat().st_size != len(data) or read_regular(out) != data:  # unchanged: untouched
+        atomic_write_bytes(out, data)
         print(f"wrote {out}")
     return 0
 
