@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import struct
 import warnings
 from pathlib import Path
@@ -186,13 +187,13 @@ def test_validate_reads_a_scene_files_material_names_and_textures_without_loadin
     assert "SECRET_TOKEN" not in str(e.value)
 
 
-@pytest.mark.parametrize("change, says", [
-    ("    transform: {translation: [0.3, 0.2, 0], scale: 1e300}", r"scale must be within 1e-06..1e\+06"),
-    ("    transform: {translation: [0.3, 0.2, 0], scale: [1, 1, 1e-9]}", r"scale must be within"),
+@pytest.mark.parametrize("change", [
+    "    transform: {translation: [0.3, 0.2, 0], scale: 1e300}",
+    "    transform: {translation: [0.3, 0.2, 0], scale: [1, 1, 1e-9]}",
 ])
-def test_a_scale_no_furniture_has_is_refused(byo, change, says):
+def test_a_scale_no_furniture_has_is_refused(byo, change):
     (byo / "bad.yaml").write_text((byo / "scene.yaml").read_text().replace("    transform: {translation: [0.3, 0.2, 0]}", change))
-    with pytest.raises(SceneError, match=says):
+    with pytest.raises(SceneError, match=re.escape("scale must be within 1e-06..1e+06")):
         scene_fingerprint(SceneRef(file=str(byo / "bad.yaml")), byo)
 
 
