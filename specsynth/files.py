@@ -34,7 +34,8 @@ def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:
     if os.path.exists(p) and not os.path.isdir(p):
         kind = (not_a_file(p) or "a file").removesuffix(", not a regular file")
         raise UnsafeOutput(f"{what} {p}: {kind}, not a folder; give a folder to write into")
-    if Path(os.path.realpath(p)) == Path(os.path.realpath(p)).parent:
+    real = Path(os.path.realpath(p))
+    if real == real.parent:
         raise UnsafeOutput(f"{what} {p}: the root of the file system; give a folder of its own to write into")
     return p
 

@@ -29,9 +29,9 @@ from ..assets.meshfiles.sniff import check_mesh_file
 from ..assets.meshio import UV_LIMIT, MeshData, read_mesh
 from ..assets.resolve import AssetError
 from ..files import not_a_file, read_regular
-from ..spec.yamlio import shape_problem
 from ..model.conventions import rpy_matrix
 from ..model.ir import LightIR, MaterialIR, MeshInstance, WorldIR, as_tuple
+from ..spec.yamlio import shape_problem
 from . import autostage, filemeshes, gltfscene, random_room, surfaces
 from .models import Box, Cylinder, LightDef, Plane, SceneFile, SceneMaterial, SceneMesh, StageDef, World
 from .types import SceneDesc, Stage

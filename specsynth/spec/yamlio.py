@@ -180,9 +180,11 @@ def parse_override(item: str) -> tuple[tuple, Any]:
     dotted = dotted.strip()
     if not dotted or any(not p for p in dotted.split(".")):
         raise SpecError([Problem("--set", None, None, dotted, "empty field name")])
+    shape, value = None, ""
     try:
-        shape = shape_problem(raw) if raw.strip() else None
-        value = yaml.safe_load(raw) if raw.strip() and not shape else ""
+        if raw.strip():
+            shape = shape_problem(raw)
+            value = None if shape else yaml.safe_load(raw)
     except yaml.YAMLError as e:
         raise SpecError([Problem(f"--set {dotted}", None, None, "", f"cannot parse value {raw!r}: {e}")]) from None
     if shape:

@@ -108,5 +108,5 @@ def preview_scene(name: str, backend: str | None, dest: Path, *, width: int = 64
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
     image = draw_stages(res.rgb, scene, cam) if stages else Image.fromarray(res.rgb)
-    atomic_write_via(Path(dest), image.save, suffix=Path(dest).suffix)  # a link there is replaced, not followed
+    atomic_write_via(dest, image.save, suffix=dest.suffix)  # a link there is replaced, not followed
     return dest

@@ -187,6 +187,18 @@ def source_files(path: Path) -> list[Path]:
     return out
 
 
+def checked_references(path: Path) -> dict[str, Path]:
+    """Name as written -> file of every material library and texture an OBJ names that exists,
+    each checked: what a resolver handed to trimesh may serve (:func:`.part.checked_resolver`)."""
+    files = {name: lib for name, lib in mtl_libraries(path) if lib.is_file()}
+    for lib in list(files.values()):
+        for lineno, name in map_statements(lib):
+            tex = texture_file(lib, name, lineno)
+            if tex is not None:
+                files[name] = tex
+    return files
+
+
 def materials_of(path: Path) -> dict[str, tuple[MtlMaterial, Path]]:
     """Every material of the OBJ's libraries -> (material, the MTL it came from)."""
     out: dict[str, tuple[MtlMaterial, Path]] = {}

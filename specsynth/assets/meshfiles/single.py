@@ -17,13 +17,7 @@ from .part import MeshFileError, checked_resolver
 def _resolver(path: Path):
     suffix = path.suffix.lower()
     if suffix == ".obj":
-        files = {name: lib for name, lib in obj.mtl_libraries(path) if lib.is_file()}
-        for lib in list(files.values()):
-            for lineno, name in obj.map_statements(lib):
-                tex = obj.texture_file(lib, name, lineno)
-                if tex is not None:
-                    files[name] = tex
-        return checked_resolver(path, files)
+        return checked_resolver(path, obj.checked_references(path))
     if suffix in (".gltf", ".glb"):
         return checked_resolver(path, gltf.checked_references(path))
     return None
