@@ -23,6 +23,9 @@ backend:
 CASES = [
     ("unknown-top-key", BASE + "colour: red\n", 8, "colour", "unknown field"),
     ("unknown-nested-key", BASE + "cameras:\n  distanse: [0.5, 1]\n", 9, "cameras.distanse", "unknown field"),
+    ("null-key", BASE + "null: 1\n", 8, "None", "Keys should be strings"),
+    ("tilde-key", BASE + "cameras:\n  ~: 1\n", 9, "cameras.None", "Keys should be strings"),
+    ("hex-key", BASE + "0x10: 1\n", 8, "16", "Keys should be strings"),
     ("unknown-backend-option", "name: t\nobjects:\n  builtin: [duck]\nscenes:\n  - name: room\nbackend:\n  name: cycles\n  sampels: 4\n", 8, "backend.sampels", "unknown field"),
     ("missing-name", BASE.replace("name: t\n", ""), None, "name", "Field required"),
     ("missing-backend", BASE.replace("backend:\n  name: photo\n", ""), None, "backend", "Field required"),

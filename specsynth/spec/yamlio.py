@@ -96,7 +96,7 @@ def _walk(node: yaml.Node, path: tuple, positions: dict, problems: list[Problem]
     if isinstance(node, yaml.MappingNode):
         seen: dict[Any, yaml.Node] = {}
         for k, v in node.value:
-            key = k.value if isinstance(k, yaml.ScalarNode) else None
+            key = _key_text(k)
             if key in seen:
                 problems.append(
                     Problem(file, k.start_mark.line + 1, k.start_mark.column + 1, ".".join(map(str, path + (key,))),
@@ -108,6 +108,19 @@ def _walk(node: yaml.Node, path: tuple, positions: dict, problems: list[Problem]
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
             _walk(v, path + (i,), positions, problems, file, budget)
+
+
+def _key_text(node: yaml.Node) -> str | None:
+    """A mapping key as pydantic names it in an error's location: a string as written, any other
+    scalar as Python prints its value (``null:`` is 'None', ``yes:`` 'True', ``0x10:`` '16')."""
+    if not isinstance(node, yaml.ScalarNode):
+        return None
+    if node.tag == "tag:yaml.org,2002:str":
+        return node.value
+    try:
+        return str(yaml.constructor.SafeConstructor().construct_object(node))
+    except (yaml.YAMLError, ValueError):
+        return node.value
 
 
 class _TooBig(Exception):
@@ -246,11 +259,15 @@ def _is_union_tag(part: str) -> bool:
 
 
 def _lookup(cur: Any, part) -> tuple[bool, Any]:
-    """The child ``part`` of a data node; YAML keys like ``5:`` are ints in data, strings in paths."""
+    """The child ``part`` of a data node; YAML keys like ``5:`` or ``null:`` are ints or None in
+    data, strings in paths."""
     if isinstance(cur, dict):
         for k in (part, str(part)) + ((int(part),) if isinstance(part, str) and part.isdigit() else ()):
             if k in cur:
                 return True, cur[k]
+        for k, v in cur.items():  # a key YAML made None, a bool or a float: pydantic prints it
+            if not isinstance(k, str) and str(k) == str(part):
+                return True, v
     elif isinstance(cur, list) and isinstance(part, int) and part < len(cur):
         return True, cur[part]
     return False, None
