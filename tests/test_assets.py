@@ -548,3 +548,15 @@ def test_a_colour_gain_multiplies_the_objects_colours(tmp_path):
     assert gained[1].material == plain[1].material
     with pytest.raises(ValueError, match="colour gain"):
         Objects(path="dataset:lmo/models", materials={"9": {"color_gain": [5.0, 1.0, 1.0]}})
+
+
+def test_a_mesh_trimesh_cannot_parse_names_its_format_and_quotes_none_of_it(tmp_path):
+    from specsynth.assets.meshfiles.part import MeshFileError
+    from specsynth.assets.meshfiles.single import read_single
+
+    bad = tmp_path / "part.off"
+    bad.write_text("OFF\n3 1 0\nSECRET-COORDINATE 0 0\n")
+    with pytest.raises(MeshFileError) as e:
+        read_single(bad)
+    assert "part.off: not a readable OFF file (trimesh raised ValueError)" in str(e.value)
+    assert "SECRET" not in str(e.value)

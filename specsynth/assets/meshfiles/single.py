@@ -14,6 +14,9 @@ from . import gltf, obj
 from .part import MeshFileError, checked_resolver
 
 
+FORMATS = {".stl": "STL", ".off": "OFF", ".obj": "Wavefront OBJ", ".gltf": "glTF", ".glb": "glTF binary (GLB)"}
+
+
 def _resolver(path: Path):
     suffix = path.suffix.lower()
     if suffix == ".obj":
@@ -29,8 +32,10 @@ def read_single(path: Path) -> MeshData:
     resolver = _resolver(path)
     try:
         loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=False, resolver=resolver)
-    except Exception as e:  # trimesh raises a zoo of types for broken files
-        raise MeshFileError(f"{path}: cannot read mesh ({type(e).__name__})") from None
+    except Exception as e:  # trimesh raises a zoo of types for broken files; their messages may quote the file
+        fmt = FORMATS.get(path.suffix.lower(), path.suffix or "a mesh")
+        raise MeshFileError(f"{path}: not a readable {fmt} file (trimesh raised {type(e).__name__}): "
+                            f"truncated, or another format under this name?") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0 or len(loaded.faces) == 0:
         raise MeshFileError(f"{path}: empty mesh (no vertices or triangles)")
     uv = colors = None
