@@ -61,6 +61,36 @@ def test_missing_or_empty_backgrounds_folder_is_located(tmp_path):
     assert pr.path == "backend.backgrounds" and "not found" in pr.message
 
 
+def test_a_broken_or_huge_photograph_in_the_backgrounds_folder_is_located_before_any_job(tmp_path):
+    """validate reads each photograph's header (not its pixels): a corrupt one, or one claiming too
+    many pixels, is named at the spec's line instead of failing the render job that draws it."""
+    import struct
+    import zlib
+
+    from PIL import Image
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    Image.new("RGB", (8, 8), (90, 90, 90)).save(photos / "good.jpg")
+    (photos / "notes.txt").write_text("not a photo: ignored")
+    (photos / "broken.jpg").write_bytes(b"SECRET" * 20)
+    spec = SPEC.replace("{name: photo}", "{name: photo, backgrounds: photos}")
+    (pr,) = _problems(tmp_path, spec)
+    assert (pr.line, pr.path) == (5, "backend.backgrounds") and "broken.jpg" in pr.message and "SECRET" not in pr.message
+    (photos / "broken.jpg").unlink()
+    ihdr = struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0)
+    (photos / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+                                      + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+    (pr,) = _problems(tmp_path, spec)
+    assert pr.path == "backend.backgrounds" and "huge.png" in pr.message and "pixel" in pr.message
+    (photos / "huge.png").unlink()
+    f = tmp_path / "s.yaml"
+    compile_spec(load_spec(f))  # the good photo and the note pass
+
+
 def test_collision_hull_of_a_huge_mesh_is_bounded():
     """Not refused: the hull of a huge mesh is computed from 200,000 of its vertices, with a warning."""
     from specsynth.physics import _convex_hull_vertices

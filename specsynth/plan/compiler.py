@@ -278,8 +278,12 @@ def principal_point_note(intr) -> str | None:
             f"{intr.width} x {intr.height} image; when changing width and height, scale fx, fy, cx and cy too")
 
 
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
+
+
 def _input_folders(spec: DatasetSpec, loaded: LoadedSpec) -> dict[str, str]:
-    """The listing digest of every folder the backend's options name (photographs, HDRIs)."""
+    """The listing digest of every folder the backend's options name (photographs, HDRIs), each
+    photograph's header checked."""
     found = {}
     for option, folder in spec.backend.input_folders().items():
         try:
@@ -288,8 +292,14 @@ def _input_folders(spec: DatasetSpec, loaded: LoadedSpec) -> dict[str, str]:
             raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
         if not root.is_dir():
             raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} not found ({root})")])
-        if not any(p.is_file() for p in root.rglob("*")):
+        files = [p for p in sorted(root.rglob("*")) if p.is_file()]
+        if not files:
             raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
+        for p in (p for p in files if p.suffix.lower() in PHOTO_SUFFIXES):  # headers only: a bad one fails here,
+            try:  # not in the render job that draws it
+                check_texture(p, f"backend.{option}: {p}")
+            except AssetError as e:
+                raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
         found[f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
     return found
 
