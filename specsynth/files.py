@@ -100,9 +100,16 @@ def refuse_links_out(folder: Path) -> None:
     pointing elsewhere (``out/bop -> /data``) would carry writes and deletes out of it, so the
     command stops and names it instead. Links that stay inside ``folder`` are harmless."""
     root = Path(folder).resolve()
-    for top, dirs, files in os.walk(folder, followlinks=False):
-        for name in dirs + files:
-            p = Path(top) / name
-            if p.is_symlink() and not inside(p, root):
-                raise UnsafeOutput(f"{p}: a symbolic link out of the output folder (to {os.path.realpath(p)}); "
-                                   "remove it or give another folder")
+    todo = [os.fspath(folder)]
+    while todo:  # scandir's entries know whether they are links without a stat each (a dataset: 10^5 files)
+        try:
+            entries = list(os.scandir(todo.pop()))
+        except OSError:  # gone meanwhile, or unreadable: as os.walk, nothing to refuse there
+            continue
+        for entry in entries:
+            if entry.is_symlink():
+                if not inside(entry.path, root):
+                    raise UnsafeOutput(f"{entry.path}: a symbolic link out of the output folder (to "
+                                       f"{os.path.realpath(entry.path)}); remove it or give another folder")
+            elif entry.is_dir(follow_symlinks=False):
+                todo.append(entry.path)
