@@ -57,6 +57,7 @@ COUNT = _number(int, lambda v: v >= 0, "0 or more")
 SHARE = _number(float, lambda v: 0.0 <= v <= 1.0, "a share within 0..1")
 DISTANCE = _number(float, lambda v: 0.0 <= v < float("inf"), "a finite distance of 0 or more")
 SCALE = _number(float, lambda v: 0.0 < v <= 16.0, "a scale over 0 and at most 16")
+FRACTION = _number(float, lambda v: 0.0 < v <= 1.0, "a fraction over 0 and at most 1")
 
 
 def cmd_validate(args) -> int:
@@ -470,12 +471,17 @@ def cmd_bench(args) -> int:
                      scale=args.scale, backends=args.backend or None, console=console,
                      levels=tuple(args.levels.split(",")) if args.levels else ("low", "medium", "high"),
                      ladder=args.ladder, only=tuple(x for x in (args.only or "").split(",") if x),
-                     ref_parts=args.ref_parts)
-    t = Table(title=f"bench: {args.spec} ({args.views} view(s), scale {args.scale})")
-    for col in ("backend", "setting", "samples", "seconds", "relMSE", "PSNR dB", "SSIM"):
+                     ref_parts=args.ref_parts, ref_crop=args.ref_crop)
+    windowed = args.ref_crop < 1
+    t = Table(title=f"bench: {args.spec} ({args.views} view(s), scale {args.scale}"
+                    + (f", scored and timed on the centre {args.ref_crop:g} of each side)" if windowed else ")"))
+    cols = ("backend", "setting", "samples", "s / window" if windowed else "seconds", "relMSE", "PSNR dB", "SSIM")
+    for col in cols + (("s / image",) if windowed else ()):
         t.add_column(col, justify="left" if col in ("backend", "setting") else "right")
     for r in rows:
-        t.add_row(r.backend, r.setting, str(r.samples), f"{r.seconds:.2f}", f"{r.rel_mse:.2e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}")
+        whole = (("-" if r.image_seconds is None else f"{r.image_seconds:.2f}"),) if windowed else ()
+        t.add_row(r.backend, r.setting, str(r.samples), f"{r.seconds:.2f}", f"{r.rel_mse:.2e}", f"{r.psnr:.2f}",
+                  f"{r.ssim:.4f}", *whole)
     console.print(t)
     for b, e in equal_error_speedups(rows).items():
         console.print(f"{b}: at the 'high' preset's error ({e['target_psnr']} dB) the fastest setting is "
@@ -828,6 +834,11 @@ def _dataset_commands(sub) -> None:
     p.add_argument("--ref-parts", type=int, default=2,
                    help="independent renders the reference is made of (at least 2; more: a steadier measure of "
                         "one render's error where rare bright samples make most of it)")
+    p.add_argument("--ref-crop", type=FRACTION, default=1.0,
+                   help="the references render only the centred window of this fraction of the image's width and "
+                        "height (0.4: 16 %% of the pixels); every other setting renders the whole image, scored on "
+                        "that window, and the window alone: times and speed-ups are the window's, the whole "
+                        "image's time is reported beside them")
     p.add_argument("--scale", type=SCALE, default=0.25, help="image scale (0.25 = 160x120 for VGA specs)")
     p.add_argument("--backend", action="append", help="only these backends (repeatable)")
     p.add_argument("--levels", help="comma-separated quality levels to bench (default low,medium,high)")

@@ -54,6 +54,12 @@ def _broken_variants():
             noise = self._rng.integers(0, 8, r.rgb.shape, dtype=np.uint8)
             return RenderResult(rgb=np.maximum(r.rgb, 8) - noise, stats=r.stats)
 
+    class CentredPrincipalPoint(flat):  # the principal point at the image's centre, whatever K says
+        def render(self, camera, quality, seed, *, clamp=None):
+            K = np.array(camera.K)
+            K[0, 2], K[1, 2] = (camera.width - 1) / 2, (camera.height - 1) / 2
+            return super().render(replace(camera, K=tuple(map(tuple, K))), quality, seed, clamp=clamp)
+
     class WrongShape(flat):
         def render(self, camera, quality, seed, *, clamp=None):
             r = super().render(camera, quality, seed, clamp=clamp)
@@ -77,6 +83,7 @@ def _broken_variants():
         pytest.param(flat, "motion_blur", id="claims-motion-blur"),  # declared, but a still camera
         pytest.param(UpsideDown, "silhouettes", id="upside-down"),
         pytest.param(Leaky, "reload", id="leaky-load"),
+        pytest.param(CentredPrincipalPoint, "window", id="centred-principal-point"),
         pytest.param(Unseeded, "determinism", id="unseeded"),
         pytest.param(WrongShape, "render_shape", id="wrong-shape"),
         pytest.param(WrongShape, "discovery", id="not-the-registered-class"),

@@ -296,7 +296,8 @@ def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_pat
 
     plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
     spec = SimpleNamespace(quality=Quality(level="high"))
-    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec)
+    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec, reference_camera=lambda vrec: vrec,
+                            window=None)
     refs = {k: Reference(mu.astype(np.float32), linear_to_srgb8(mu.astype(np.float32)), 0.0) for k in (0, 1)}
     (tmp_path / "bench").mkdir()
     row = bench_setting(plugin, Noisy, Setting("x", "high+targeted", "high", {"__control__": "error"}), {"name": "x"},
@@ -344,7 +345,8 @@ def _bench_of_one_view(tmp_path):
     (tmp_path / "bench").mkdir()
     return (BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X"),
             SimpleNamespace(quality=Quality(level="high")),
-            SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec),
+            SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: vrec, reference_camera=lambda vrec: vrec,
+                            window=None),
             [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)])
 
 
@@ -471,3 +473,97 @@ def test_bench_targeted_row_and_cached_references(tmp_path):
     same = ("seconds", "rel_mse", "psnr", "ssim", "samples", "views")  # a scene load is timed again
     assert [high[0][k] for k in same] == [high[1][k] for k in same] and high[0]["samples"] == 225 and high[0]["ssim"] is None
     assert 0 < high[0]["rel_mse"] and 0 < high[0]["psnr"] < 100
+
+
+def test_under_ref_crop_every_row_is_timed_and_scored_on_the_window_and_the_whole_image_is_timed_beside(tmp_path):
+    """--ref-crop: the reference's parts render a cropped camera; every other setting renders the
+    whole image, scored on the window (here against the known noise of the window's pixels) and
+    timed, and the window alone, timed: the row's seconds, as the preset's from the parts are its
+    window's. A stand-in renderer whose image is a function of the ray's direction (so a cropped
+    camera sees the same pixels) and whose render takes a time in proportion to its pixels."""
+    import time
+    from types import SimpleNamespace
+
+    from specsynth.model.colour import linear_to_srgb8
+    from specsynth.model.ir import CameraIR, RenderResult, as_tuple
+    from specsynth.plugins import BackendPlugin
+    from specsynth.run.bench import Setting, bench_setting, centre_window
+    from specsynth.spec.models import BackendOptions, Quality
+
+    full = CameraIR(K=((50.0, 0.0, 39.5), (0.0, 50.0, 29.5), (0.0, 0.0, 1.0)), width=80, height=60,
+                    R_w2c=as_tuple(np.eye(3)), t_w2c=(0.0, 0.0, 0.0))
+    window = centre_window(80, 60, 0.5)
+    x0, y0, w, h = window
+
+    def mean_of(cam):  # bright on the left, dark on the right, by direction
+        u = np.arange(cam.width) - cam.K[0][2]
+        v = np.arange(cam.height)[:, None] - cam.K[1][2]
+        return np.repeat((0.5 - 0.01 * u + 0.002 * v)[..., None], 3, axis=-1).clip(0.05, None)
+
+    drawn = []
+
+    class Windowed:
+        def __init__(self, options, threads=0):
+            pass
+
+        def version(self):
+            return "stand-in 1"
+
+        def load(self, scene):
+            pass
+
+        def render(self, cam, quality, seed, clamp=None):
+            n = quality.samples
+            drawn.append((n, cam.width, cam.height))
+            time.sleep(cam.width * cam.height * 1e-5)  # 48 ms for the whole image, 12 ms for the window
+            mu = mean_of(cam)
+            x = (mu * (1 + np.random.default_rng(seed).standard_normal(mu.shape) / np.sqrt(n))).astype(np.float32)
+            return RenderResult(rgb=linear_to_srgb8(x), linear=x, stats={"samples": n})
+
+        def close(self):
+            pass
+
+    (tmp_path / "bench").mkdir()
+    plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
+    spec = SimpleNamespace(quality=Quality(level="high"))
+    shots = SimpleNamespace(scene=lambda arec: None, camera=lambda vrec: full, window=window,
+                            reference_camera=lambda vrec: full.cropped(*window))
+    picked = [(SimpleNamespace(to_json=lambda: {"arrangement": 0}), 0, 11)]
+    refs = {}
+    args = ({"name": "x"}, spec, picked, shots, refs, 1, tmp_path)
+    bench_setting(plugin, Windowed, Setting("x", "reference", "high", {"__factor__": 2, "__parts__": 2}, reference=True),
+                  *args)
+    assert drawn == [(225, w, h)] * 2 and refs[0].linear.shape == (h, w, 3)
+    preset = bench_setting(plugin, Windowed, Setting("x", "high", "high", {}), *args)
+    assert preset.seconds == refs[0].part_seconds and preset.image_seconds is None  # not measured
+    medium = bench_setting(plugin, Windowed, Setting("x", "medium", "medium", {}), *args)
+    assert drawn[2:] == [(36, 80, 60)] * 2 + [(36, w, h)] * 2  # each a warm-up and the timed render
+    assert 0.012 <= medium.seconds < 0.048 <= medium.image_seconds
+    mu = mean_of(full)[y0:y0 + h, x0:x0 + w]
+    assert np.allclose(refs[0].linear, mu, rtol=0.25)  # the window's pixels, not another part of the image
+    expected = np.mean(mu**2 / 36 / (mu**2 + 0.01))  # rel_mse's normaliser: the reference's square + 0.01
+    assert medium.rel_mse == pytest.approx(expected, rel=0.1)
+
+
+@pytest.mark.slow
+def test_bench_on_a_window_with_cycles(tmp_path):
+    """--ref-crop on a real renderer: the reference is the window's size, every rung has the
+    whole image's time beside its window's, the preset from the parts has only the window's, and
+    the table says which is which."""
+    from PIL import Image
+
+    out = tmp_path / "bench"
+    r = subprocess.run([sys.executable, "-m", "specsynth.cli", "bench", str(ROOT / "specs/demo.yaml"), "--out", str(out),
+                        "--views", "1", "--scale", "0.1", "--ref-factor", "2", "--ref-crop", "0.5", "--backend", "cycles",
+                        "--levels", "high", "--only", "high,high+denoise@4", "--set", "arrangements.count=1"],
+                       capture_output=True, text=True, timeout=900, env={**os.environ, "COLUMNS": "250"})
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "s / window" in r.stdout and "s / image" in r.stdout
+    assert Image.open(out / "bench" / "cycles_ref_0.png").size == (32, 24)  # the 64 x 48 image's centre
+    with open(out / "bench.csv") as f:
+        rows = {row["setting"]: row for row in csv.DictReader(f)}
+    assert rows["high"]["image_seconds"] == "" and float(rows["high"]["seconds"]) > 0
+    rung = rows["high+denoise@4"]
+    assert 0 < float(rung["seconds"]) < float(rung["image_seconds"]) and 0 < float(rung["psnr_db"]) < 100
+    meta = json.loads((out / "bench.json").read_text())["meta"]
+    assert meta["ref_crop"] == 0.5 and meta["window"] == [16, 12, 32, 24]

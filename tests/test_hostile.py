@@ -269,6 +269,8 @@ def test_a_scene_file_or_a_set_value_nested_too_deep_is_refused(tmp_path):
     (("build", "{spec}", "--out", "{tmp}/out", "--threads", "-1"), "argument --threads: '-1': at least 1"),
     (("scenes", "show", "room2", "--clearance", "nan"), "argument --clearance: 'nan': a finite distance"),
     (("bench", "{spec}", "--scale", "0"), "argument --scale: '0': a scale over 0"),
+    (("bench", "{spec}", "--out", "o", "--ref-crop", "0"), "argument --ref-crop: '0': a fraction over 0"),
+    (("bench", "{spec}", "--out", "o", "--ref-crop", "1.5"), "argument --ref-crop: '1.5': a fraction over 0"),
     (("scenes", "show", "room2", "--out", "{tmp}"), "a folder, not a file"),
     (("schema", "--backends", "cycles,bogus", "--stdout"), "--backends: bogus not installed"),
     (("scenes", "show", "room2", "--out", "{tmp}/top.txt"), "an image file name ending in .png or .jpg"),

@@ -196,6 +196,19 @@ class CameraIR:
         K[:2, 2] += 0.5 * factor - 0.5
         return replace(self, K=as_tuple(K), width=self.width * factor, height=self.height * factor)
 
+    def cropped(self, x0: int, y0: int, width: int, height: int) -> "CameraIR":
+        """The window of ``width`` x ``height`` pixels from pixel ``(x0, y0)`` as a camera of its own:
+        its pixel (u, v) is this camera's (x0 + u, y0 + v)."""
+        ints = (x0, y0, width, height)
+        if any(not isinstance(v, int) or isinstance(v, bool) for v in ints):
+            raise ValueError(f"a camera is cropped to whole pixels, got {ints!r}")
+        if x0 < 0 or y0 < 0 or width < 1 or height < 1 or x0 + width > self.width or y0 + height > self.height:
+            raise ValueError(f"window {width}x{height} at ({x0}, {y0}) is not inside the {self.width}x{self.height} image")
+        K = self.K_array.copy()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        return replace(self, K=as_tuple(K), width=width, height=height)
+
     @property
     def K_array(self) -> np.ndarray:
         return np.asarray(self.K, dtype=np.float64)

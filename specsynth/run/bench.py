@@ -44,12 +44,35 @@ class Shots:
     world: World
     optics: Optics
     materials: Materials  # the spec's objects' (a render input)
+    window: tuple[int, int, int, int] | None = None  # (x0, y0, w, h) the reference renders; None: all
 
     def scene(self, arec: ArrangementRecord):
         return self.world.render_scene(arec, self.materials)
 
     def camera(self, vrec: ViewRecord):
         return self.optics.camera(vrec.R_w2c, vrec.t_w2c)
+
+    def reference_camera(self, vrec: ViewRecord):
+        cam = self.camera(vrec)
+        return cam if self.window is None else cam.cropped(*self.window)
+
+
+def centre_window(width: int, height: int, fraction: float) -> tuple[int, int, int, int] | None:
+    """(x0, y0, w, h): the centred window of ``fraction`` of the image's width and height (at
+    least one pixel each way), or None for the whole image."""
+    if not 0 < fraction <= 1:
+        raise ValueError(f"--ref-crop {fraction}: a fraction of the image's width and height, in (0, 1]")
+    w, h = max(1, round(width * fraction)), max(1, round(height * fraction))
+    if (w, h) == (width, height):
+        return None
+    return (width - w) // 2, (height - h) // 2, w, h
+
+
+def in_window(image: np.ndarray, window: tuple[int, int, int, int] | None) -> np.ndarray:
+    if window is None:
+        return image
+    x0, y0, w, h = window
+    return image[y0:y0 + h, x0:x0 + w]
 
 
 @dataclass
@@ -76,6 +99,8 @@ class Row:
     # target the render's estimated error, the target (the paper preset's estimated error), samples
     views: list = None
     load: float = 0.0  # median seconds of a scene load
+    # the whole image's seconds; under --ref-crop ``seconds`` is the window's (None: not measured)
+    image_seconds: float | None = None
 
 
 LEVELS = ("low", "medium", "high")
@@ -323,15 +348,22 @@ def scaled_intrinsics(intr, scale: float):
 
 def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1, ref_factor: int = 4,
               scale: float = 0.5, backends: list[str] | None = None, console=None, levels: tuple[str, ...] = LEVELS,
-              ladder: bool = False, only: tuple[str, ...] = (), ref_parts: int = 2) -> list[Row]:
+              ladder: bool = False, only: tuple[str, ...] = (), ref_parts: int = 2,
+              ref_crop: float = 1.0) -> list[Row]:
+    """``ref_crop``: the references render the centred window of this fraction of the image's
+    width and height. Every other setting renders the whole image, timed (``Row.image_seconds``)
+    and scored on that window, and the window alone, timed (``Row.seconds``): the preset's
+    time from the parts is its window's, and so speed-ups compare the same pixels."""
     from ..plan.inputs import ArrangeInputs
 
     if ref_parts < 2:
         raise ValueError(f"--ref-parts {ref_parts}: a reference needs at least 2 parts (its own variance)")
+    centre_window(8, 8, ref_crop)  # a wrong fraction fails before anything is built
     out = Path(out)
     spec = graph.spec
     intr = spec.intrinsics
     small = scaled_intrinsics(intr, scale)
+    window = centre_window(small.width, small.height, ref_crop)
     names = backends or [p.name for p in installed_backend_plugins() if p.capabilities.draws_scene]
     for name in names:  # a wrong label or option fails before anything is built
         try:
@@ -357,7 +389,8 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
         base_opts = base_options(spec.backend, plugin)
         # One BLAS thread, as in a build's workers (tasks.Steps): only the renderer is timed.
         with threadpool_limits(limits=1, user_api="blas"):
-            shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small), spec.objects.materials)
+            shots = Shots(World(ArrangeInputs.cut(spec), graph.spec_path.parent), Optics(small), spec.objects.materials,
+                          window)
             refs: dict[int, Reference] = {}
             settings = pick_settings(settings_for(plugin, ref_factor, levels, ladder, ref_parts), only, plugin.capabilities.denoise)
             settings = [settings[-1]] + settings[:-1]  # reference first: every other row needs it
@@ -380,7 +413,7 @@ def run_bench(graph: JobGraph, out: Path, *, n_views: int = 2, repeats: int = 1,
             for label, option in bench_settings(plugin).toggles:
                 savings.append(toggle_saving(plugin, label, option, base_opts, spec, picked, shots, preset, repeats))
     write_report(rows, out, graph, savings=savings, n_views=len(picked), scale=scale, ref_factor=ref_factor,
-                 ref_parts=ref_parts)
+                 ref_parts=ref_parts, ref_crop=ref_crop, window=window)
     return rows, savings
 
 
@@ -449,10 +482,10 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
 
     options, preset, target = _setting_options(plugin, st, base_opts, spec)
     if is_a_reference_part(st, preset, target, refs):
-        return row_from_parts(plugin.name, st, refs)
+        return row_from_parts(plugin.name, st, refs, whole=shots.window is None)
     backend = cls(options, threads=0)
     draw = _drawer(backend, preset, target, spec.quality.clamp, options.supersample)
-    times, errs, loads, phase_sums, views = [], [], [], {}, []
+    times, image_times, errs, loads, phase_sums, views = [], [], [], [], {}, []
     samples = 0
     for i, (arec, vrec, seed) in enumerate(picked):
         t0 = time.perf_counter()
@@ -460,28 +493,24 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
         loads.append(time.perf_counter() - t0)
         cam = shots.camera(vrec)
         if st.reference:
-            refs[i] = reference(backend, options, cam, preset, seed, spec.quality.clamp, arec, out, load=loads[-1],
-                                revision=plugin.revision, parts=st.options.get("__parts__", 2))
+            refs[i] = reference(backend, options, shots.reference_camera(vrec), preset, seed, spec.quality.clamp, arec,
+                                out, load=loads[-1], revision=plugin.revision, parts=st.options.get("__parts__", 2))
             write_png(out / "bench" / f"{plugin.name}_ref_{i}.png", refs[i].rgb)
             times.append(refs[i].part_seconds * len(refs[i].parts))
             continue
-        if i == 0:
-            # Untimed: the first render of a setting compiles kernels (Dr.Jit, per sampler and
-            # spp) or syncs the scene (Cycles); a dataset renders thousands after it.
-            draw(cam, seed)
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            res = draw(cam, seed)
-            ts.append(time.perf_counter() - t0)
-        times.append(statistics.median(ts))
+        seconds, res = _timed(draw, cam, seed, repeats, warm=i == 0)
+        image_times.append(seconds)
+        # under --ref-crop the setting's time is its window's, as the preset's from the parts is
+        times.append(seconds if shots.window is None else
+                     _timed(draw, shots.reference_camera(vrec), seed, repeats, warm=i == 0)[0])
         # per pixel of the image: a supersampled render traces F^2 times its count
         samples = int(res.stats.get("samples", res.stats.get("spp", 0))) * int(res.stats.get("supersample", 1)) ** 2
         for k, v in (res.stats.get("phases") or {}).items():
             phase_sums[k] = phase_sums.get(k, 0.0) + v / len(picked)
-        lin = res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255
+        lin = in_window(res.linear if res.linear is not None else res.rgb.astype(np.float32) / 255, shots.window)
+        rgb = in_window(res.rgb, shots.window)
         ref = refs[i]
-        errs.append((rel_mse(lin, ref.linear) - ref.variance, psnr8(res.rgb, ref.rgb), ssim8(res.rgb, ref.rgb)))
+        errs.append((rel_mse(lin, ref.linear) - ref.variance, psnr8(rgb, ref.rgb), ssim8(rgb, ref.rgb)))
         views.append({"rel_mse": errs[-1][0], "samples": samples,
                       **{k: res.stats[k] for k in ("error_estimate", "error_se", "error_target")
                          if k in res.stats}})
@@ -496,7 +525,21 @@ def bench_setting(plugin: BackendPlugin, cls, st: Setting, base_opts: dict, spec
     # per view, as the seconds and errors: under an error target each view takes its own samples
     mean_samples = round(float(np.mean([v["samples"] for v in views])))
     return Row(plugin.name, st.label, st.level, float(np.mean(times)), float(e[0]), float(e[1]), float(e[2]),
-               mean_samples, phases, views, statistics.median(loads))
+               mean_samples, phases, views, statistics.median(loads), float(np.mean(image_times)))
+
+
+def _timed(draw, cam, seed: int, repeats: int, warm: bool):
+    """(median seconds of ``repeats`` renders, the last render); ``warm``: one untimed render
+    first, as the first render of a setting or a camera size compiles kernels (Dr.Jit, per
+    sampler, spp and film) or syncs the scene (Cycles), and a dataset renders thousands after it."""
+    if warm:
+        draw(cam, seed)
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = draw(cam, seed)
+        ts.append(time.perf_counter() - t0)
+    return statistics.median(ts), res
 
 
 def is_a_reference_part(st: Setting, preset: QualityPreset, target, refs: dict) -> bool:
@@ -516,13 +559,14 @@ def part_variance(parts, norm: np.ndarray) -> float:
     return float(np.mean([extrapolated_rel_mse(parts[i], parts[j], 1, 1, norm=norm) for i, j in pairs]))
 
 
-def row_from_parts(backend: str, st: Setting, refs: dict) -> Row:
+def row_from_parts(backend: str, st: Setting, refs: dict, whole: bool = True) -> Row:
     """The row of a setting each part of the reference rendered, from the K parts: its relMSE is
     one render's (``part_variance``); its PSNR that of an independent render against the parts'
     mean, whose 8-bit MSE is ``(1 + 1/K) / 2`` of a pair's ``(x_i8 - x_j8)^2`` (one render's
     noise plus the mean's K-th of it); its time a part's render. No SSIM: it has no such
     relation. At VGA this saves the preset's two renders (a warm-up and the timed one) of
-    minutes each."""
+    minutes each. Under ``--ref-crop`` its time is a part's of the window, the whole image's not
+    measured."""
     views, psnrs = [], []
     for ref in refs.values():
         k = len(ref.parts)
@@ -532,9 +576,11 @@ def row_from_parts(backend: str, st: Setting, refs: dict) -> Row:
         mse8 = (1 + 1 / k) / 2 * float(pair_mse8)
         psnrs.append(float("inf") if mse8 == 0 else 10 * np.log10(255.0**2 / mse8))
     rs = list(refs.values())
-    return Row(backend, st.label, st.level, float(np.mean([r.part_seconds for r in rs])),
+    seconds = float(np.mean([r.part_seconds for r in rs]))
+    return Row(backend, st.label, st.level, seconds,
                float(np.mean([v["rel_mse"] for v in views])), float(np.mean(psnrs)), float("nan"),
-               rs[0].preset.samples, {}, views, statistics.median(r.load for r in rs))
+               rs[0].preset.samples, {}, views, statistics.median(r.load for r in rs),
+               seconds if whole else None)
 
 
 REFERENCE_FORMAT = 3  # 3: one file per part, with its render time and whether it was the scene's first
@@ -667,9 +713,10 @@ def write_report(rows: list[Row], out: Path, graph: JobGraph, savings: list[Savi
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "bench.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["backend", "setting", "level", "seconds", "rel_mse", "psnr_db", "ssim", "samples"])
+        w.writerow(["backend", "setting", "level", "seconds", "rel_mse", "psnr_db", "ssim", "samples", "image_seconds"])
         for r in rows:
-            w.writerow([r.backend, r.setting, r.level, f"{r.seconds:.3f}", f"{r.rel_mse:.4e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}", r.samples])
+            w.writerow([r.backend, r.setting, r.level, f"{r.seconds:.3f}", f"{r.rel_mse:.4e}", f"{r.psnr:.2f}", f"{r.ssim:.4f}", r.samples,
+                        "" if r.image_seconds is None else f"{r.image_seconds:.3f}"])
     equal = equal_error_speedups(rows)
     (out / "bench.json").write_text(json.dumps(_finite({
         "meta": {**meta, "spec": str(graph.spec_path)},

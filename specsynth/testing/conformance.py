@@ -512,6 +512,45 @@ def check_silhouettes(ctx: ConformanceContext) -> None:
         )
 
 
+WINDOW = (17, 9, 44, 36)  # (x0, y0, w, h) off the image's centre, holding both objects
+
+
+def check_window(ctx: ConformanceContext) -> None:
+    """A camera cropped to a window of the image (``CameraIR.cropped``: its principal point moved
+    by the window's corner) renders that window of the whole image's render, to the pixel: on the
+    whole image's edges, the window lines up at no shift better than at the one it claims.
+    ``specsynth bench --ref-crop`` renders its references so."""
+    x0, y0, w, h = WINDOW
+    quality = PAPER_PRESETS["medium"]  # the samples to see edges through a path tracer's noise
+    ctx.load(ctx.scenes.full)
+    full = _rgb(ctx, ctx.backend.render(ctx.scenes.camera, quality, SEED)).astype(np.float64)
+    part = ctx.backend.render(ctx.scenes.camera.cropped(x0, y0, w, h), quality, SEED).rgb
+    _require(part.shape == (h, w, 3), ctx.name, f"a {w}x{h} camera rendered an image of shape {part.shape}")
+    grey = full.mean(axis=-1)
+    gradient = np.hypot(*np.gradient(grey))[y0:y0 + h, x0:x0 + w]
+    if not ctx.plugin.capabilities.draws_scene:  # its backdrop is drawn for each image size: the objects only
+        from scipy.ndimage import binary_erosion
+
+        ctx.load(ctx.scenes.no_objects)
+        empty = ctx.backend.render(ctx.scenes.camera, quality, SEED).rgb
+        ctx.load(ctx.scenes.full)
+        objects = binary_erosion((full != empty).any(axis=-1), iterations=1)[y0:y0 + h, x0:x0 + w]
+        _require(objects.sum() >= 20, ctx.name, "test setup: too few object pixels in the window")
+        gradient = np.where(objects, gradient, -1.0)
+    edges = gradient >= np.quantile(gradient[gradient >= 0], 0.9)
+
+    def off(dx: int, dy: int) -> float:
+        there = full[y0 + dy:y0 + dy + h, x0 + dx:x0 + dx + w]
+        return float(np.abs(part.astype(np.float64) - there)[edges].mean())
+
+    shifts = {(dx, dy): off(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
+    best = min(shifts, key=shifts.get)
+    _require(best == (0, 0) and shifts[0, 0] < 0.5 * min(v for k, v in shifts.items() if k != (0, 0)), ctx.name,
+             f"the window rendered by a cropped camera lines up with the whole image shifted by {best} pixels "
+             f"(mean |diff| on edges {shifts[best]:.1f}, unshifted {shifts[0, 0]:.1f}): check how the principal "
+             "point is placed")
+
+
 def check_reload(ctx: ConformanceContext) -> None:
     """load() replaces the previous scene completely: nothing of it leaks into the next."""
     s = ctx.scenes
@@ -617,6 +656,7 @@ CHECKS: dict[str, Callable[[ConformanceContext], None]] = {
     "camera_moves": check_camera_moves,
     "silhouettes": check_silhouettes,
     "reload": check_reload,
+    "window": check_window,
     "depth_of_field": check_depth_of_field,
     "motion_blur": check_motion_blur,
     "denoiser_guides": check_denoiser_guides,

@@ -88,6 +88,9 @@ class BackendConformanceTests(BackendTestBase):
     def test_reload(self, conformance):
         run_check(conformance, "reload")
 
+    def test_window(self, conformance):
+        run_check(conformance, "window")
+
     def test_depth_of_field(self, conformance):
         run_check(conformance, "depth_of_field")
 
