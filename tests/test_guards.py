@@ -87,8 +87,11 @@ def test_a_broken_or_huge_photograph_in_the_backgrounds_folder_is_located_before
     (pr,) = _problems(tmp_path, spec)
     assert pr.path == "backend.backgrounds" and "huge.png" in pr.message and "pixel" in pr.message
     (photos / "huge.png").unlink()
+    ihdr = struct.pack(">IIBBBBB", 9000, 9000, 8, 2, 0, 0, 0)  # over a texture's limit, within a photo's
+    (photos / "large.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+                                       + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
     f = tmp_path / "s.yaml"
-    compile_spec(load_spec(f))  # the good photo and the note pass
+    compile_spec(load_spec(f))  # the good photo, the large one and the note pass
 
 
 def test_collision_hull_of_a_huge_mesh_is_bounded():

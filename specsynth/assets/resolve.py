@@ -726,6 +726,24 @@ def mean_linear_colour(path: Path) -> np.ndarray:
     return srgb_to_linear(rgb).reshape(-1, 3).mean(0)
 
 
+def check_photo(path: Path, what: str) -> None:
+    """A photograph a backend draws behind the objects: its header opens as an image, within the
+    pixel count PIL decodes without calling it a decompression bomb (what the photo backend reads
+    with). Header only: a folder may hold thousands, and a broken body is named by the render."""
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                im.size  # noqa: B018 (the header is read)
+    except Image.DecompressionBombError:
+        raise AssetError(f"{what}: {path} claims over {2 * Image.MAX_IMAGE_PIXELS:,} pixels; scale it down or "
+                         "remove it from the folder") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as e:  # PIL's ways of saying "not an image"
+        raise AssetError(f"{what}: {path} is not an image PIL can read ({type(e).__name__})") from None
+
+
 def check_texture(path: Path, what: str) -> None:
     """A texture must be an image that decodes within the pixel limit: a corrupt one would render
     as garbage or crash a worker, a huge one fill its memory (``bake.check_image``)."""

@@ -18,6 +18,7 @@ from ..assets.resolve import (
     bop_folder_notes,
     builtin_objects,
     catalogue_objects,
+    check_photo,
     check_texture,
     expand_path,
     file_digest,
@@ -297,7 +298,7 @@ def _input_folders(spec: DatasetSpec, loaded: LoadedSpec) -> dict[str, str]:
             raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
         for p in (p for p in files if p.suffix.lower() in PHOTO_SUFFIXES):  # headers only: a bad one fails here,
             try:  # not in the render job that draws it
-                check_texture(p, f"backend.{option}: {p}")
+                check_photo(p, f"backend.{option}")
             except AssetError as e:
                 raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
         found[f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
