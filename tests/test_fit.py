@@ -48,7 +48,7 @@ def test_the_sensor_of_a_known_camera_is_fitted_back(real_photos):
     for im in real_photos:
         x = gaussian_filter(srgb8_to_linear(im) * 2.0 ** 1.5, sigma=(1.2, 1.2, 0), mode="mirror")
         made.append(process(np.clip(x + 0.02 * np.sqrt(x) * rng.standard_normal(x.shape), 0, None), 1.3, 1.4))
-    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), real_photos, "test", "png", seed=1)[0]}
+    edits = {e.field: e for e in fit.sensor_edits(_stats_of(made), real_photos, "test", "png", seed=1, jobs=2)[0]}
     lo, hi = edits["sensor.exposure"].value
     assert 1.3 < (lo + hi) / 2 < 1.7
     assert 1.25 < edits["sensor.contrast"].value < 1.55
@@ -129,13 +129,13 @@ def test_a_probe_clipped_at_eight_bits_is_probed_again_at_the_exposure_found(rea
     lin = [srgb8_to_linear(im) for im in real_photos]
     real = _stats_of(real_photos)
     over = [linear_to_srgb8(x * 4.0) for x in lin]
-    edits, cam = fit.sensor_edits(real, over, "test", None)
+    edits, cam = fit.sensor_edits(real, over, "test", None, jobs=2)
     assert fit.clipped_share(over) > fit.CLIPPED_LIMIT >= fit.clipped_share(real_photos)
     again = fit.reprobe_exposure(over, cam)
     assert again is not None and -2.0 < again < -1.0  # clipped, the probe also looks darker than it is
     assert fit.reprobe_exposure(real_photos, cam) is None  # nothing clipped: the probe stands
     probe = [linear_to_srgb8(x * 4.0 * 2.0**again) for x in lin]
-    refit, _ = fit.sensor_edits(real, probe, "test", None, probe_stops=again)
+    refit, _ = fit.sensor_edits(real, probe, "test", None, probe_stops=again, jobs=2)
     first, second = ({e.field: e.value for e in x} for x in (edits, refit))
     lo, hi = second["sensor.exposure"]
     assert -2.15 < (lo + hi) / 2 < -1.85  # the probe's stops and the fit's together
