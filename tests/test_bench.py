@@ -38,7 +38,7 @@ def test_equal_error_speedup_picks_fastest_setting_at_high_error():
 
 
 def test_camera_savings_are_priced_with_measured_times():
-    rows = [Row("c", "low", "low", 2.0, 0, 0, 0, 1)]
+    rows = [Row("c", "low", "low", 2.0, 0, 0, 0, 1, image_seconds=2.0)]
     first = {"rejected": 3, "rejected_seconds": 0.3, "cameras": 10, "jobs": 14, "worker_seconds": 5.0, "ran": 14}
     cached = {**first, "ran": 0, "wall": 0.5}
     s = {x.what: x.seconds for x in camera_savings("c", rows, "low", (first, cached), load_s=1.5, per_arrangement=4)}
@@ -47,6 +47,10 @@ def test_camera_savings_are_priced_with_measured_times():
     assert s["cache"] == pytest.approx(4.5)
     # The spec's level not benched (`--levels high`): no price for the pre-check, rather than NaN.
     s = {x.what for x in camera_savings("c", rows, "medium", (first, cached), load_s=1.5, per_arrangement=4)}
+    assert s == {"scene loaded once per arrangement", "cache"}
+    # Under --ref-crop a row's seconds are its window's; the preset's whole image is not measured
+    windowed = [Row("c", "low", "low", 0.3, 0, 0, 0, 1, image_seconds=None)]
+    s = {x.what for x in camera_savings("c", windowed, "low", (first, cached), load_s=1.5, per_arrangement=4)}
     assert s == {"scene loaded once per arrangement", "cache"}
 
 

@@ -303,8 +303,8 @@ def camera_savings(backend: str, rows: list[Row], level: str, cams: tuple[dict, 
     """Skipping, priced with this bench's own measurements on this backend."""
     first, cached = cams
     out = []
-    render = next((r.seconds for r in rows if r.backend == backend and r.setting == level), None)
-    if render is not None:  # priced only when the spec's level was benched (`--levels`, `--only`)
+    render = next((r.image_seconds for r in rows if r.backend == backend and r.setting == level), None)
+    if render is not None:  # priced only when the spec's level was benched on the whole image (`--only`, `--ref-crop`)
         out.append(Saving(backend, "visibility pre-check", first["rejected"] * render - first["rejected_seconds"],
                           "view build", f"{first['rejected']} sampled cameras rejected for {first['cameras']} view "
                           f"jobs ({first['rejected_seconds']:.2f} s of checks) x {render:.2f} s per '{level}' render"))
