@@ -121,6 +121,7 @@ def test_a_probe_as_sharp_and_clean_as_the_real_images_gets_no_blur_and_no_noise
     assert "outputs.image_format" not in edits  # not PNG: the spec keeps its format
 
 
+@pytest.mark.slow  # two sensor fits, or a build and a fit: minutes on 2 cores
 def test_a_probe_clipped_at_eight_bits_is_probed_again_at_the_exposure_found(real_photos):
     """A probe two stops too bright clips its highlights at 8 bits: their colour and texture are
     gone, and the tone curve and saturation fitted on it are made up (2.13 and 0.63 here). Rendered
@@ -198,6 +199,7 @@ def _unfitted(tmp_path: Path) -> Path:
     return spec
 
 
+@pytest.mark.slow  # two sensor fits, or a build and a fit: minutes on 2 cores
 def test_a_fitted_spec_built_small_moves_its_geometry_toward_the_real_split(tmp_path, capsys):
     spec = _unfitted(tmp_path)
     out, _ = _fitted(tmp_path, str(spec), probe=0)
