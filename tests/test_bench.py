@@ -312,8 +312,8 @@ def test_a_targeted_row_reports_the_samples_of_its_views_not_of_its_last(tmp_pat
 
 
 def _stand_in(image, renders: list):
-    """A renderer class for ``bench_setting`` whose render of ``n`` samples and ``seed`` is
-    ``image(n, seed)`` (linear), each render's samples appended to ``renders``."""
+    """A renderer class for ``bench_setting`` whose render of ``n`` samples, ``seed`` and camera
+    is ``image(n, seed, cam)`` (linear), each render's samples appended to ``renders``."""
     from specsynth.model.colour import linear_to_srgb8
     from specsynth.model.ir import RenderResult
 
@@ -330,7 +330,7 @@ def _stand_in(image, renders: list):
         def render(self, cam, quality, seed, clamp=None):
             n = quality.samples
             renders.append(n)
-            x = image(n, seed)
+            x = image(n, seed, cam)
             return RenderResult(rgb=linear_to_srgb8(x), linear=x, stats={"samples": n})
 
         def close(self):
@@ -365,7 +365,7 @@ def test_a_level_each_reference_part_rendered_is_measured_from_the_parts_as_if_r
 
     mu = np.linspace(0.02, 0.9, 160 * 240 * 3).reshape(160, 240, 3)
     renders = []
-    Noisy = _stand_in(lambda n, seed: np.clip(mu * (1 + 1.0 / np.sqrt(n) * np.random.default_rng(seed).standard_normal(
+    Noisy = _stand_in(lambda n, seed, cam: np.clip(mu * (1 + 1.0 / np.sqrt(n) * np.random.default_rng(seed).standard_normal(
         mu.shape)), 0, None).astype(np.float32), renders)
     plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
     refs = {}
@@ -399,7 +399,7 @@ def test_a_parts_time_is_a_render_after_the_scenes_first(tmp_path):
     from specsynth.run.bench import Setting, bench_setting
 
     renders = []
-    Flat = _stand_in(lambda n, seed: np.full((8, 8, 3), 0.5, np.float32), renders)
+    Flat = _stand_in(lambda n, seed, cam: np.full((8, 8, 3), 0.5, np.float32), renders)
     plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
 
     def reference(parts):
@@ -435,7 +435,7 @@ def test_references_are_shared_by_denoiser_settings_and_redrawn_for_a_new_render
     from specsynth.run.bench import Setting, bench_setting
 
     renders = []
-    Flat = _stand_in(lambda n, seed: np.full((8, 8, 3), 0.5, np.float32), renders)
+    Flat = _stand_in(lambda n, seed, cam: np.full((8, 8, 3), 0.5, np.float32), renders)
     plugin, spec, shots, picked = _bench_of_one_view(tmp_path)
 
     def bench_reference(p, parts=2, **options):
@@ -488,8 +488,7 @@ def test_under_ref_crop_every_row_is_timed_and_scored_on_the_window_and_the_whol
     import time
     from types import SimpleNamespace
 
-    from specsynth.model.colour import linear_to_srgb8
-    from specsynth.model.ir import CameraIR, RenderResult, as_tuple
+    from specsynth.model.ir import CameraIR, as_tuple
     from specsynth.plugins import BackendPlugin
     from specsynth.run.bench import Setting, bench_setting, centre_window
     from specsynth.spec.models import BackendOptions, Quality
@@ -506,26 +505,13 @@ def test_under_ref_crop_every_row_is_timed_and_scored_on_the_window_and_the_whol
 
     drawn = []
 
-    class Windowed:
-        def __init__(self, options, threads=0):
-            pass
+    def image(n, seed, cam):
+        drawn.append((n, cam.width, cam.height))
+        time.sleep(cam.width * cam.height * 1e-5)  # 48 ms for the whole image, 12 ms for the window
+        mu = mean_of(cam)
+        return (mu * (1 + np.random.default_rng(seed).standard_normal(mu.shape) / np.sqrt(n))).astype(np.float32)
 
-        def version(self):
-            return "stand-in 1"
-
-        def load(self, scene):
-            pass
-
-        def render(self, cam, quality, seed, clamp=None):
-            n = quality.samples
-            drawn.append((n, cam.width, cam.height))
-            time.sleep(cam.width * cam.height * 1e-5)  # 48 ms for the whole image, 12 ms for the window
-            mu = mean_of(cam)
-            x = (mu * (1 + np.random.default_rng(seed).standard_normal(mu.shape) / np.sqrt(n))).astype(np.float32)
-            return RenderResult(rgb=linear_to_srgb8(x), linear=x, stats={"samples": n})
-
-        def close(self):
-            pass
+    Windowed = _stand_in(image, [])
 
     (tmp_path / "bench").mkdir()
     plugin = BackendPlugin(name="x", options=BackendOptions, backend="nowhere:X")
