@@ -660,3 +660,26 @@ def test_accepted_cameras_keep_an_open_view_when_near_share_is_set(tmp_path):
     open_views = shares(0.1)
     assert len(open_views) >= 6 and max(open_views) <= 0.1 + 1.5 / 108, open_views
     assert max(shares(1.0)) >= 0.2
+
+
+def test_a_backgrounds_folder_under_home_is_fingerprinted_by_its_photos(tmp_path, monkeypatch):
+    """backend.backgrounds: ~/photos is the folder render jobs read; a photo changed there changes
+    the render stage's inputs (its listing had been taken of a folder named '~' beside the spec,
+    missing, so a changed photo rebuilt nothing)."""
+    from PIL import Image
+
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    photos = tmp_path / "home" / "photos"
+    photos.mkdir(parents=True)
+    Image.new("RGB", (64, 48), (10, 200, 30)).save(photos / "green.png")
+    f = tmp_path / "t.yaml"
+    f.write_text(SPEC.replace("  name: photo\n", "  name: photo\n  backgrounds: ~/photos\n"))
+
+    def listing():
+        inputs = compile_spec(load_spec(f)).stage_inputs["render"]
+        return next(v for k, v in inputs.items() if k == "folder:~/photos")
+
+    before = listing()
+    assert not before.startswith("missing:")
+    Image.new("RGB", (64, 50), (200, 10, 30)).save(photos / "green.png")
+    assert listing() != before

@@ -183,12 +183,9 @@ def backend_fingerprint(name: str) -> str:
     return backend_plugin(name).fingerprint()
 
 
-def _folder_listing_digest(folder: Path, base: Path) -> str:
+def _folder_listing_digest(root: Path, files: list[Path]) -> str:
     """Names, sizes and mtimes of a folder's files: cheap, and changes when a photo changes."""
-    root = folder if folder.is_absolute() else base / folder
-    if not root.is_dir():
-        return f"missing:{root}"
-    entries = sorted((str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file())
+    entries = sorted((str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files)
     return keys.digest(entries)
 
 
@@ -301,7 +298,7 @@ def _input_folders(spec: DatasetSpec, loaded: LoadedSpec) -> dict[str, str]:
                 check_photo(p, f"backend.{option}")
             except AssetError as e:
                 raise SpecError([loaded.locate(f"backend.{option}", str(e))]) from None
-        found[f"folder:{folder}"] = _folder_listing_digest(Path(folder), loaded.directory)
+        found[f"folder:{folder}"] = _folder_listing_digest(root, files)  # the folder walked once, ~ expanded
     return found
 
 
