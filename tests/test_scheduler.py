@@ -107,3 +107,50 @@ def test_build_splits_view_and_render_groups_but_not_arrangements():
     parts = split_group(Call(print, ("w", "key", [a, b]), "view", "arr=000000", 2, 0))
     assert [(c.args, c.n, c.ident) for c in parts] == [(("w", "key", [a]), 1, a.id), (("w", "key", [b]), 1, b.id)]
     assert split_group(Call(print, ("w", "key", [a]), "view", a.id, 1, 0)) is None
+
+
+def test_an_arrangements_renders_stay_on_one_worker_until_the_builds_last_ones(monkeypatch):
+    """A worker keeps the scene it loaded: an arrangement's renders go to one worker together
+    while other arrangements are still to come; the build's last ``workers - 1`` are split, one
+    render per call when renders are dear, in groups sharing the workers when they are cheap."""
+    from specsynth.run import schedule
+
+    graph = object()
+    for estimate in (2.0, 0.1):
+        monkeypatch.setattr(schedule, "render_estimate", lambda g, s=estimate: s)
+        for workers in (1, 2, 4):
+            for to_come in range(6):
+                split = 1 if estimate >= schedule.SINGLE_RENDER_SECONDS else -(-6 // workers)
+                expected = 6 if to_come >= workers - 1 else split
+                assert schedule.render_chunk(graph, 6, workers, to_come) == expected
+    assert schedule.render_chunk(graph, 20, 2, 5) == schedule.RENDER_CHUNK
+
+
+def test_a_build_loads_each_arrangement_on_fewer_workers(monkeypatch):
+    """Two threads as workers, each keeping the scene it last loaded (as a build's worker keeps
+    its RenderCall): four arrangements of four dear renders load 4 or 5 scenes, not up to 8."""
+    from specsynth.run import schedule
+
+    monkeypatch.setattr(schedule, "render_estimate", lambda g: 2.0)
+    loads, kept = [], threading.local()
+
+    def render(arr, n):
+        if getattr(kept, "arr", None) != arr:
+            kept.arr = arr
+            loads.append(arr)
+        time.sleep(0.002 * n)
+
+    queued: set[int] = set()
+
+    def on_done(c: Call, res):
+        if c.stage != "arrange":
+            return []
+        queued.add(c.arr)
+        size = schedule.render_chunk(None, 4, 2, 4 - len(queued))
+        return [Call(render, (c.arr, size), "render", f"r{c.arr}/{k}", size, c.arr) for k in range(0, 4, size)]
+
+    calls = [Call(lambda: None, (), "arrange", f"a{i}", 1, i) for i in range(4)]
+    with ThreadPoolExecutor(2) as ex:
+        run_calls(ex, calls, on_done, lambda c, e: [], window=2, retries=0)
+    assert sorted(set(loads)) == [0, 1, 2, 3]
+    assert len(loads) <= 5  # arrangements 0-2 once each; the last one on one or both workers

@@ -29,6 +29,7 @@ class Pipeline:
         self.wkey, self.workers, self.until = wkey, workers, until
         self.arr_jobs = [graph.arrangement_jobs(a) for a in range(graph.n_arrangements)]
         self.views_left: dict[int, int] = {}  # arrangement -> view jobs not yet finished or failed
+        self.renders_queued: set[int] = set()  # arrangements whose render calls are made
         self.spans: list[tuple[str, str, int, int, float, float, dict]] = []  # stage, call, jobs, pid, start, seconds, args
         self.cached_render: set[str] = set()
         # What the workers reported: each job's record as stored, by (stage, key), and the models
@@ -99,9 +100,8 @@ class Pipeline:
         sr.cached += cached
         self.prog.update(self.bars["render"], total=sr.total)
         self.advance("render", cached)
-        # Split an arrangement's renders between the workers (each loads the scene once):
-        # otherwise the last arrangement's group runs alone at the end of the build.
-        size = render_chunk(self.graph, len(todo), self.workers)
+        self.renders_queued.add(i)
+        size = render_chunk(self.graph, len(todo), self.workers, len(self.arr_jobs) - len(self.renders_queued))
         chunks = [todo[k:k + size] for k in range(0, len(todo), size)]
         return [Call(self.tasks["render"], (self.wkey, a.key, c), "render", group_id(c[0]), len(c), i) for c in chunks]
 
@@ -150,6 +150,8 @@ class Pipeline:
         self.summary.stages[c.stage].failed += c.n
         self.summary.failures.append({"stage": c.stage, "job": c.ident, "error": f"{type(e).__name__}: {e}",
                                       "tries": c.runs})
+        if c.stage == "arrange":
+            self.renders_queued.add(c.arr)  # no renders will come: not one to wait for (render_chunk)
         return self._view_resolved(c.arr, c.n) if c.stage == "view" else []
 
     def record_timing(self, out: Path) -> None:
