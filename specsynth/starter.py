@@ -62,10 +62,11 @@ cameras:
 visibility:
   threshold: 0.3               # a camera is kept when at least this fraction of its object is visible
 quality:
-  level: low                   # low / medium / high (denoised), paper_low ... paper_high (the paper's presets)
+  level: low                   # low: 1 sample per pixel; medium / high: denoised, the paper's error for less;
+                               # paper_low ... paper_high: the paper's presets as they are (docs: quality)
 backend:
   name: {backend} # the renderer: `specsynth backends` lists those installed
-outputs:                       # BOP, COCO and Parquet are written by default
+{look}outputs:                       # BOP, COCO and Parquet are written by default
   image_format: jpg
   depth_scale: 0.25            # mm per depth unit: uint16 then holds 16.4 m (room walls exceed 6.5 m)
 """
@@ -117,7 +118,29 @@ def starter_text(folder: Path, *, models: str | None = None, scene: str | None =
                         out="out/" if here else f"{(folder / 'out').as_posix()}/")
     objects = (_OBJECTS_BOP.format(path=_yaml_str(_relative(models, folder))) if models else _OBJECTS_BUILTIN)
     scenes = _SCENE_FILE.format(path=_yaml_str(_relative(scene, folder))) if scene else _SCENE_BUILTIN
-    return head + objects + scenes + _REST.format(backend=f"{backend or default_backend():<22s}")
+    backend = backend or default_backend()
+    return head + objects + scenes + _REST.format(backend=f"{backend:<22s}", look=_look(backend))
+
+
+_DENOISE = "  denoise: true                # OpenImageDenoise: at 1 sample an image is speckle without it\n"
+_SENSOR = """\
+sensor:                        # what the camera does to the render, as a real one does
+  auto_exposure: true          # metered to middle grey: a lamp near the desk would otherwise burn it out
+  auto_white_balance: true     # warm room lamps would otherwise tint every image orange
+"""
+
+
+def _look(backend: str) -> str:
+    """What makes a path tracer's images look like photographs from the first build: its
+    denoiser, and a camera that meters and balances (the photo baseline draws over photographs,
+    which are exposed already)."""
+    from .plugins import PluginNotFound, backend_plugin
+
+    try:
+        caps = backend_plugin(backend).capabilities
+    except PluginNotFound:
+        return ""
+    return (_DENOISE if caps.denoise else "") + (_SENSOR if caps.draws_scene else "")
 
 
 def write_starter(folder: Path, *, models: str | None = None, scene: str | None = None,

@@ -39,3 +39,4 @@ def lm_models(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def ruapc_models(tmp_path_factory) -> Path:
     return write_bop_models(tmp_path_factory.mktemp("ruapc") / "models", 14, seed=1)
+

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from photolike import photo_faults
 
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIALS = ROOT / "docs" / "tutorials"
@@ -70,3 +71,7 @@ def test_a_tutorial_runs(name, tmp_path):
             continue
         r = subprocess.run(command(what), cwd=tmp_path, capture_output=True, text=True, timeout=1800)
         assert r.returncode == 0, f"{name}: `{what}` exited {r.returncode}:\n{r.stderr[-2000:]}"
+    if name in PBR:  # what a tutorial renders with a path tracer looks like a photograph
+        images = [p for p in tmp_path.rglob("rgb/*") if p.suffix in (".png", ".jpg") and "bop" in p.parts]
+        assert images, f"{name}: no image rendered"
+        assert not [f for p in images for f in photo_faults(p)], [f for p in images for f in photo_faults(p)]

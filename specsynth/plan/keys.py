@@ -22,8 +22,9 @@ from typing import Any
 # kind (ImageRecord.files) and written by registered products: a render job of an earlier version is
 # run again, never read. arrange 5: standing distractors with no free spot are left out, not stacked
 # (physics.arrange's unstacked); distractors may be painted. arrange 6: paint in a toy's hues
-# (run.arrange.PLASTIC_HUES), not any hue.
-STAGE_VERSIONS = {"arrange": 6, "view": 2, "render": 4}
+# (run.arrange.PLASTIC_HUES), not any hue. render 5: auto exposure meters 4 x 4 zones
+# (views.sensor.metered_luminance), not single pixels.
+STAGE_VERSIONS = {"arrange": 6, "view": 2, "render": 5}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 

@@ -41,10 +41,29 @@ def balance_gains(light: np.ndarray | None) -> np.ndarray:
     return np.clip(float(light @ REC709_LUMA) / np.maximum(light, 1e-12), *AWB_GAINS)
 
 
-def exposure_gain(linear: np.ndarray) -> float:
-    """The factor that brings the image's log-average luminance to middle grey (Reinhard's key), as
-    a camera's average metering does; within AE_RANGE; 1 for a black image."""
+METER_ZONE = 4  # pixels a side of the zones metering averages before their log-average
+
+
+def metered_luminance(linear: np.ndarray) -> np.ndarray:
+    """The luminance auto exposure meters: the mean of each METER_ZONE x METER_ZONE zone (the
+    image's edge rows and columns that fill no zone are left out). A camera meters the light, not
+    a render's noise: the log-average of single pixels of a one-sample render, where many pixels
+    found no light path, read its image 2.8 stops darker than its converged render (a demo view at
+    640 x 480, Cycles); of 4 x 4 zones 0.3 stops; and the zones of the converged render read it 0.08
+    stops brighter than its pixels do."""
     y = np.asarray(linear, np.float64) @ REC709_LUMA
+    b = METER_ZONE
+    h, w = y.shape[0] // b * b, y.shape[1] // b * b
+    if h == 0 or w == 0:  # smaller than a zone: the image is one zone
+        return np.array([[y.mean()]]) if y.size else y
+    return y[:h, :w].reshape(h // b, b, w // b, b).mean(axis=(1, 3))
+
+
+def exposure_gain(linear: np.ndarray) -> float:
+    """The factor that brings the image's log-average luminance over metering zones
+    (``metered_luminance``) to middle grey (Reinhard's key), as a camera's average metering does;
+    within AE_RANGE; 1 for a black image."""
+    y = metered_luminance(linear)
     if not np.any(y > 0):
         return 1.0
     log_mean = float(np.exp(np.mean(np.log(np.maximum(y, 1e-4)))))
