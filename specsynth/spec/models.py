@@ -692,7 +692,8 @@ class Sensor(Strict):
         "under a 2700 K lamp and wood stays wood (gains limited to [0.2, 5]).")
     auto_exposure: bool = Field(
         False, description="Meter each image as a camera's auto exposure does: scale it so the geometric mean of its "
-        "luminance is middle grey (0.18 linear), by a factor within [1/16, 16]; applied before 'exposure' jitter.")
+        "luminance over 4x4-pixel zones is middle grey (0.18 linear), by a factor within [1/16, 16]; applied before "
+        "'exposure' jitter. Zones, not pixels: a camera meters the light, not a few-sample render's noise.")
     blur: FloatRange(0.0, 20.0) | None = Field(
         None, description="Optical softness (lens, anti-aliasing filter, demosaicking): a Gaussian blur of sigma "
         "pixels, drawn per image in this range, applied to the linear image before noise. `specsynth fit` sets it "
