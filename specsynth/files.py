@@ -95,6 +95,19 @@ def inside(path: str | os.PathLike, root: str | os.PathLike) -> bool:
     return p == r or r in p.parents
 
 
+def under(root: str | os.PathLike, rel: str) -> Path | None:
+    """``root / rel`` for a path read from a file (a build's own index of its files): a plain
+    relative path that stays under ``root`` once links are resolved; None for anything else (an
+    absolute path, a ``..``, a link out), which a command then neither writes nor deletes."""
+    if not isinstance(rel, str) or not rel or "\0" in rel:
+        return None
+    parts = rel.split("/")
+    if rel.startswith("/") or any(part in ("", ".", "..") for part in parts):
+        return None
+    path = Path(root, *parts)
+    return path if inside(path.parent, root) else None
+
+
 def refuse_links_out(folder: Path) -> None:
     """Every file a command writes or deletes lives under ``folder``: a symbolic link in there
     pointing elsewhere (``out/bop -> /data``) would carry writes and deletes out of it, so the

@@ -871,3 +871,49 @@ def test_depth_noise_coefficients_are_at_most_1(tmp_path):
     compile_spec(load_spec(spec, ["sensor={depth: {axial_noise: [1.0, 1.0]}}"]))
     (pr,) = problems(spec, "sensor={depth: {axial_noise: [0.001, 1.5]}}")
     assert pr.path == "sensor.depth.axial_noise" and "above 1 (metres" in pr.message
+
+
+# --------------------------------------------------------------------------- 12. the build's own index
+
+
+# The merge writes into a staging folder three levels under the output folder (.specsynth/staging/new):
+# five '..' after yolo/ reach the folder beside it; forty reach the root, whence any path.
+@pytest.mark.parametrize("rel", ["yolo/../../../../../victim/precious.txt", "yolo/" + "../" * 40 + "{victim_abs}",
+                                 "yolo/..//../../../../victim/precious.txt"])
+def test_a_rebuild_deletes_nothing_an_edited_index_names_outside_its_folder(tmp_path, rel):
+    """The index of a build's files (.specsynth/outputs.json) lives in the folder and travels with
+    it: a path there that leads out of the folder (a '..', an absolute path) is data, never a file to
+    delete as stale (a rebuild had deleted it, and the folder it emptied)."""
+    from specsynth.cli import main
+
+    spec = obj_scene(tmp_path)
+    out = tmp_path / "out"
+    assert main(["build", str(spec), "--out", str(out), "--quiet"]) == 0
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "precious.txt").write_text("the user's")
+    (out / "yolo").mkdir()  # a writer owns yolo/ and is off: its files in the index are stale
+    index = out / ".specsynth" / "outputs.json"
+    doc = json.loads(index.read_text())
+    doc[rel.format(victim_abs=str(victim / "precious.txt").lstrip("/"))] = [1, 1, "0" * 64]
+    index.write_text(json.dumps(doc))
+    assert main(["build", str(spec), "--out", str(out), "--quiet"]) == 0
+    assert (victim / "precious.txt").read_text() == "the user's"
+
+
+@pytest.mark.parametrize("text", ["null", "[1, 2]", '{"bop/x.png": 5}', "[" * 100_000 + "]" * 100_000])
+def test_a_damaged_index_is_read_as_none_and_the_rebuild_succeeds(tmp_path, text):
+    """A build's index that is not the shape it writes (edited, damaged) is left out, as an index
+    that cannot be read is: the rebuild hashes its files again (it had failed after all the work
+    with "TypeError: 'NoneType' object is not iterable")."""
+    from specsynth.cli import main
+    from specsynth.run.verify import read_index
+
+    spec = obj_scene(tmp_path)
+    out = tmp_path / "out"
+    assert main(["build", str(spec), "--out", str(out), "--quiet"]) == 0
+    (out / ".specsynth" / "outputs.json").write_text(text)
+    assert read_index(out) == {}
+    r = cli("build", spec, "--out", out, "--quiet", "--set", "seed=3", timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert read_index(out) and all(not rel.startswith("..") for rel in read_index(out))

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from ..assets.resolve import ObjectAsset
+from ..files import under
 from ..output_api import DatasetWriter, ImageEntry, Merge, in_order, products, writers
 from ..spec.models import DatasetSpec
 from .dataset import parts
@@ -48,12 +49,15 @@ def _remove_stale(merge: Merge, found: dict[str, DatasetWriter], previous: Itera
     would not have them (files no writer owns, a user's, stay)."""
     out = merge.out
     for rel in previous:
+        path = under(out, rel)  # the index is a file in the folder: data, never a path out of it
+        if path is None:
+            continue
         said = [_current(w, rel, merge) for w in found.values()]
         if True in said or False not in said:
             continue
-        (out / rel).unlink(missing_ok=True)
-        folder = (out / rel).parent
-        while folder != out and folder.is_dir() and not any(folder.iterdir()):  # left empty
+        path.unlink(missing_ok=True)
+        folder = path.parent
+        while folder != out and out in folder.parents and folder.is_dir() and not any(folder.iterdir()):  # left empty
             folder.rmdir()
             folder = folder.parent
 

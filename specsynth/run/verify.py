@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ..files import read_regular, under
 from .store import write_json
 
 INDEX = Path(".specsynth") / "outputs.json"
@@ -36,10 +37,21 @@ def output_files(out: Path) -> list[Path]:
 
 
 def read_index(out: Path) -> dict[str, list]:
+    """The last build's index of its files: {relative path: [size, mtime_ns, sha256]}. A file in the
+    folder, so it is read as data: what is not that shape (a damaged or edited index) is left out,
+    as an index that cannot be read is, and its files are hashed again."""
     try:
-        return json.loads((Path(out) / INDEX).read_bytes())
-    except (OSError, ValueError):
+        index = json.loads(read_regular(Path(out) / INDEX))
+    except (OSError, ValueError, RecursionError):
         return {}
+    if not isinstance(index, dict):
+        return {}
+    return {rel: entry for rel, entry in index.items() if _an_entry(entry) and under(out, rel) is not None}
+
+
+def _an_entry(entry) -> bool:
+    return (isinstance(entry, list) and len(entry) == 3 and all(type(x) is int for x in entry[:2])
+            and isinstance(entry[2], str))
 
 
 def write_index(out: Path) -> dict[str, list]:
