@@ -917,3 +917,48 @@ def test_a_damaged_index_is_read_as_none_and_the_rebuild_succeeds(tmp_path, text
     r = cli("build", spec, "--out", out, "--quiet", "--set", "seed=3", timeout=300)
     assert r.returncode == 0, r.stderr
     assert read_index(out) and all(not rel.startswith("..") for rel in read_index(out))
+
+
+# --------------------------------------------------------------------------- 13. stats and view write in their place
+
+
+@pytest.fixture()
+def built(tmp_path) -> Path:
+    from specsynth.cli import main
+
+    out = tmp_path / "out"
+    assert main(["build", str(obj_scene(tmp_path)), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_stats_writes_nothing_through_a_link_out_of_its_folder(built, tmp_path):
+    victim = tmp_path / "victim.json"
+    victim.write_text("the user's")
+    dest = tmp_path / "st"
+    dest.mkdir()
+    (dest / "stats.json").symlink_to(victim)
+    r = cli("stats", built, "--out", dest)
+    assert r.returncode == 2 and "stats.json: a symbolic link out of the output folder" in r.stderr, r.stderr
+    assert victim.read_text() == "the user's"
+    (dest / "stats.json").unlink()
+    r = cli("stats", built, "--out", dest)
+    assert r.returncode == 0 and (dest / "stats.png").is_file() and json.loads((dest / "stats.json").read_text())["images"]
+    for target, says in ((tmp_path / "st" / "stats.json", "a file, not a folder"), ("/dev/null", "character device")):
+        r = cli("stats", built, "--out", target)
+        assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_view_replaces_a_link_at_its_out_and_names_a_file_it_cannot_write(built, tmp_path):
+    victim = tmp_path / "photo.png"
+    victim.write_bytes(b"the user's photo")
+    link = tmp_path / "sheet.png"
+    link.symlink_to(victim)
+    r = cli("view", built, "--out", link)
+    assert r.returncode == 0, r.stderr
+    assert victim.read_bytes() == b"the user's photo" and not link.is_symlink()
+    assert link.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    os.mkfifo(tmp_path / "pipe.png")
+    for target, says in (("sheet.txt", "give a file name ending in .png"), ("pipe.png", "FIFO"),
+                         ("/dev/zero", "character device")):
+        r = cli("view", built, "--out", tmp_path / target if "/" not in target else target)
+        assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..atomic import atomic_write_bytes, atomic_write_via
+from ..files import UnsafeOutput, output_file, output_folder, refuse_links_out
 from ..model.error import error_ratio
 
 
@@ -133,7 +135,13 @@ def _crops(img: BopImage, size: int) -> list[Image.Image]:
 
 
 def contact_sheet(outs: list[Path], dest: Path, n: int = 8, seed: int = 0, width: int = 320) -> Path:
-    """N sampled images (one column per output folder, same image ids) and per-object crops."""
+    """N sampled images (one column per output folder, same image ids) and per-object crops,
+    written to ``dest`` (a PNG or JPEG file, put in place atomically: a link there is replaced)."""
+    dest = output_file(dest, "--out")
+    kind = SHEET_FORMATS.get(dest.suffix.lower())
+    if kind is None:
+        raise UnsafeOutput(f"--out {dest}: a contact sheet is an image; give a file name ending in "
+                           f"{', '.join(SHEET_FORMATS)}")
     lists = [list_images(o) for o in outs]
     if not lists[0]:
         raise FileNotFoundError(f"{outs[0]}: no BOP images found (expected bop/<split>/<chunk>/scene_gt.json)")
@@ -168,10 +176,16 @@ def contact_sheet(outs: list[Path], dest: Path, n: int = 8, seed: int = 0, width
     for r in rows:
         sheet.paste(r, (0, y))
         y += r.height
-    dest = Path(dest)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    sheet.save(dest)
+    atomic_write_via(dest, lambda tmp: sheet.save(tmp, format=kind))
     return dest
+
+
+SHEET_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+
+
+def _save_figure(fig, path: Path) -> None:
+    """A matplotlib figure as a PNG put in place atomically (a link at ``path`` is replaced)."""
+    atomic_write_via(path, lambda tmp: fig.savefig(tmp, dpi=80, format="png"))
 
 
 def dataset_stats(out: Path, dest: Path) -> dict:
@@ -181,8 +195,9 @@ def dataset_stats(out: Path, dest: Path) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out, dest = Path(out), Path(dest)
+    out, dest = Path(out), output_folder(dest, "--out")
     dest.mkdir(parents=True, exist_ok=True)
+    refuse_links_out(dest)
     images = read_parquet(out / "parquet" / "images.parquet")
     inst = read_parquet(out / "parquet" / "instances.parquet")
     summary_path = out / ".specsynth" / "summary.json"
@@ -225,10 +240,10 @@ def dataset_stats(out: Path, dest: Path) -> dict:
     fig.suptitle(f"{out}: {table['images']} images, {table['instances']} instances, "
                  f"{table['cameras_rejected']} cameras rejected, {table['objects_removed_by_physics']} objects removed")
     fig.tight_layout()
-    fig.savefig(dest / "stats.png", dpi=80)
+    _save_figure(fig, dest / "stats.png")
     plt.close(fig)
     table.update(error_stats(out, dest))
-    (dest / "stats.json").write_text(json.dumps(table, indent=2, sort_keys=True) + "\n")
+    atomic_write_bytes(dest / "stats.json", (json.dumps(table, indent=2, sort_keys=True) + "\n").encode())
     return table
 
 
@@ -258,7 +273,7 @@ def error_stats(out: Path, dest: Path) -> dict:
     b.set_ylabel("the image's estimated relMSE")
     b.legend()
     fig.tight_layout()
-    fig.savefig(dest / "quality.png", dpi=80)
+    _save_figure(fig, dest / "quality.png")
     plt.close(fig)
     return {"error_control": {"images": int(len(t)), "samples_median": float(np.median(t["samples"])),
                               "error_ratio_median": round(float(np.median(ratio)), 4),
