@@ -962,3 +962,18 @@ def test_view_replaces_a_link_at_its_out_and_names_a_file_it_cannot_write(built,
                          ("/dev/zero", "character device")):
         r = cli("view", built, "--out", tmp_path / target if "/" not in target else target)
         assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("what", ["link", "fifo"])
+def test_export_copies_no_image_from_outside_the_dataset(tmp_path, what):
+    """An image of the dataset that is a link out of it is refused before anything is written:
+    export had copied the outside file into the export. A FIFO there is no image file."""
+    out = bop_dataset(tmp_path / "out", arrangements=1, views=1)
+    rgb = out / "bop" / "train_pbr" / "000000" / "rgb" / "000000.jpg"
+    private = tmp_path / "private.jpg"
+    private.write_bytes(rgb.read_bytes())
+    rgb.unlink()
+    rgb.symlink_to(private) if what == "link" else os.mkfifo(rgb)
+    rc, err = export(out, tmp_path / "dest")
+    assert rc == 2 and "000000.jpg" in err and ("a link out of the dataset folder" if what == "link" else "no RGB file") in err
+    assert not (tmp_path / "dest").exists()

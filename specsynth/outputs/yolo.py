@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import re
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -34,7 +35,7 @@ from typing import Sequence
 
 import yaml
 
-from ..files import UnsafeOutput, refuse_links_out
+from ..files import UnsafeOutput, inside, not_a_file, refuse_links_out
 from ..output_api import DatasetWriter, Merge
 from .dataset import coco_box, place_file, write_if_changed
 from .qa import BopImage, list_images
@@ -186,6 +187,18 @@ def _check_rgb(missing: list[Path]) -> None:
                           f"{missing[0]}.jpg or .png); rebuild the dataset (specsynth build restores them)")
 
 
+def _check_own_files(images: list[BopImage], out: Path) -> None:
+    """Export copies the dataset's own images only, before anything is written: a link out of the
+    dataset would copy a file from elsewhere into the export, a FIFO hang the copy."""
+    for img in images:
+        problem = not_a_file(img.rgb)
+        if problem is not None:
+            raise ExportError(f"{img.rgb}: {problem}; export copies the dataset's image files")
+        if not inside(img.rgb, out):
+            raise ExportError(f"{img.rgb}: a link out of the dataset folder {out} (to {os.path.realpath(img.rgb)}); "
+                              "export copies only the dataset's own files")
+
+
 def _check_training_left(splits: list[str], val_split: str | None, val_fraction: float, groups: int) -> None:
     """Refused before anything is written: an export whose every image is held out has no
     training split for data.yaml to name."""
@@ -218,6 +231,7 @@ def _export(out: Path, dest: Path, *, min_visib: float, val_split: str | None, v
     _check_rgb(missing)
     if not images:
         raise ExportError(f"{out / 'bop'}: no images")
+    _check_own_files(images, out)
     splits = {img.chunk.parent.name for img in images}
     if val_split is not None and val_split not in splits:
         raise ExportError(f"--val {val_split!r}: no such split in {out / 'bop'} (have {', '.join(sorted(splits))})")
