@@ -977,3 +977,30 @@ def test_export_copies_no_image_from_outside_the_dataset(tmp_path, what):
     rc, err = export(out, tmp_path / "dest")
     assert rc == 2 and "000000.jpg" in err and ("a link out of the dataset folder" if what == "link" else "no RGB file") in err
     assert not (tmp_path / "dest").exists()
+
+
+DEEP = "[" * 100_000 + "]" * 100_000  # past the JSON decoder's recursion limit
+
+
+@pytest.mark.parametrize("file, command", [
+    ("bop/train_pbr/000000/scene_gt.json", ("view", "{out}", "--out", "{tmp}/v.png")),
+    ("bop/train_pbr/000000/scene_gt.json", ("export", "yolo", "{out}", "{tmp}/y")),
+    ("bop/train_pbr/000000/scene_gt.json", ("compare", "{out}", "{out}", "--out", "{tmp}/c")),
+    (".specsynth/manifest.json", ("diff", "{out}", "{out}")),
+])
+def test_a_dataset_json_nested_too_deep_is_named(built, tmp_path, file, command):
+    """Every command reading a built dataset's JSON names the file it cannot read (a bare
+    'RecursionError: maximum recursion depth exceeded' had named none)."""
+    (built / file).write_text(DEEP)
+    r = cli(*(c.format(out=built, tmp=tmp_path) for c in command))
+    assert r.returncode in (1, 2) and file.split("/")[-1] in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_models_info_nested_too_deep_is_located(tmp_path, lm_models):
+    import shutil
+
+    models = tmp_path / "models"
+    shutil.copytree(lm_models, models)
+    (models / "models_info.json").write_text(DEEP)
+    (pr,) = problems(obj_scene(tmp_path / "s"), f"objects={{path: {models}}}")
+    assert pr.path.startswith("objects") and "models_info.json" in pr.message

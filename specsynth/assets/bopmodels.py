@@ -78,7 +78,7 @@ def computed_models_info(folder: Path, cache: Path, read_points) -> tuple[dict[i
     if path.is_file():
         try:
             return {int(k): v for k, v in json.loads(path.read_text()).items()}, path
-        except (ValueError, OSError):
+        except (ValueError, OSError, RecursionError, AttributeError):
             pass  # a torn cache file is recomputed
     info = {i: model_info(read_points(Path(folder) / f"obj_{i:06d}.ply")) for i in ids}
     atomic_write_bytes(path, json.dumps({str(k): v for k, v in info.items()}, indent=1, sort_keys=True).encode())

@@ -529,7 +529,7 @@ def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[i
     if info.is_file():
         try:
             ids = sorted(int(k) for k in json.loads(info.read_text()))
-        except (ValueError, TypeError) as e:
+        except (ValueError, TypeError, RecursionError) as e:
             raise AssetError(f"{info}: corrupt models_info.json ({type(e).__name__})", field="objects.path") from None
     else:
         ids = bopmodels.model_ids(folder)

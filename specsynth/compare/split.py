@@ -131,6 +131,8 @@ def _read_json(path: Path, root: Path, what: str):
     except (ValueError, UnicodeDecodeError) as e:
         where = f" (line {e.lineno})" if hasattr(e, "lineno") else ""
         raise SplitError(f"{path}: not valid JSON{where}") from None
+    except RecursionError:
+        raise SplitError(f"{path}: JSON nested too deep to read") from None
 
 
 def _number(v, path: Path, where: str) -> float:

@@ -24,7 +24,7 @@ class DatasetFileError(ValueError):
 def read_json(path: Path):
     try:
         return json.loads(Path(path).read_bytes())
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, RecursionError) as e:  # RecursionError: nested too deep to decode
         raise DatasetFileError(f"{path}: unreadable JSON ({type(e).__name__})") from None
 
 

@@ -117,7 +117,7 @@ def obj_id(img: BopImage, gt: dict) -> int:
 def _read_json(path: Path):
     try:
         return json.loads(path.read_text())
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, RecursionError) as e:
         raise ExportError(f"{path}: unreadable JSON ({type(e).__name__})") from None
 
 

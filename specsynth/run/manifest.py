@@ -64,7 +64,7 @@ def read_manifest(out: Path) -> dict[str, Any]:
         raise FileNotFoundError(f"{out}: not a specsynth output folder (no .specsynth/manifest.json)")
     try:
         return json.loads(p.read_bytes())
-    except ValueError as e:
+    except (ValueError, RecursionError) as e:
         raise FileNotFoundError(f"{p}: unreadable manifest ({type(e).__name__}); rebuild to rewrite it") from None
 
 

@@ -51,7 +51,7 @@ class Store:
         path = self.path(stage, key) / RECORD
         try:
             return json.loads(path.read_bytes())
-        except ValueError as e:
+        except (ValueError, RecursionError) as e:
             raise CorruptRecord(f"{path}: corrupt job record ({type(e).__name__}); delete it to re-run the job") from None
 
     def keys(self, stage: str) -> set[str]:
