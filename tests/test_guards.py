@@ -59,6 +59,9 @@ def test_missing_or_empty_backgrounds_folder_is_located(tmp_path):
     assert (pr.line, pr.path) == (5, "backend.backgrounds") and "holds no files" in pr.message
     (pr,) = _problems(tmp_path, SPEC.replace("{name: photo}", "{name: photo, backgrounds: nowhere}"))
     assert pr.path == "backend.backgrounds" and "not found" in pr.message
+    (tmp_path / "empty" / "README.txt").write_text("no photographs here")  # each render job had failed on it
+    (pr,) = _problems(tmp_path, SPEC.replace("{name: photo}", "{name: photo, backgrounds: empty}"))
+    assert (pr.line, pr.path) == (5, "backend.backgrounds") and "holds no photographs (jpg/jpeg/png)" in pr.message
 
 
 def test_a_broken_or_huge_photograph_in_the_backgrounds_folder_is_located_before_any_job(tmp_path):

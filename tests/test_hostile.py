@@ -325,6 +325,8 @@ def test_object_counts_are_bounded_before_any_work(tmp_path):
     (pr,) = problems(spec, "objects.instances=[0,300]", "arrangements.distractors={count: [300, 300]}")
     assert pr.path == "objects.instances" and "objects per arrangement" in pr.message
     assert "SPECSYNTH_MAX_OBJECTS" in pr.message and "over the limit of 500" in pr.message
+    (pr,) = problems(spec, "objects.instances=[0,0]")  # the build had run physics and cameras, then found no object
+    assert pr.path == "objects.instances" and "no instance of any model would be dropped" in pr.message
 
 
 # --------------------------------------------------------------------------- 11. what a scene file is

@@ -293,7 +293,11 @@ def _input_folders(spec: DatasetSpec, loaded: LoadedSpec) -> dict[str, str]:
         files = [p for p in sorted(root.rglob("*")) if p.is_file()]
         if not files:
             raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no files ({root})")])
-        for p in (p for p in files if p.suffix.lower() in PHOTO_SUFFIXES):  # headers only: a bad one fails here,
+        photos = [p for p in files if p.suffix.lower() in PHOTO_SUFFIXES]
+        if not photos:  # the render jobs would each fail on it, after the arrangements and cameras
+            raise SpecError([loaded.locate(f"backend.{option}", f"folder {folder!r} holds no photographs "
+                                           f"({'/'.join(s.lstrip('.') for s in PHOTO_SUFFIXES)}) ({root})")])
+        for p in photos:  # headers only: a bad one fails here,
             try:  # not in the render job that draws it
                 check_photo(p, f"backend.{option}")
             except AssetError as e:

@@ -159,6 +159,13 @@ class Objects(Strict):
             raise ValueError(f"at most {MAX_DROPPED} instances of a model per arrangement")
         return v
 
+    @field_validator("instances")
+    @classmethod
+    def _some_instances(cls, v):
+        if v[1] == 0:  # the build had run physics and cameras for arrangements without an object
+            raise ValueError("max 0: no instance of any model would be dropped (at least [0, 1])")
+        return v
+
     @field_validator("materials", mode="before")
     @classmethod
     def _ids_as_keys(cls, v):
