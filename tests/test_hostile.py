@@ -1006,3 +1006,43 @@ def test_a_models_info_nested_too_deep_is_located(tmp_path, lm_models):
     (models / "models_info.json").write_text(DEEP)
     (pr,) = problems(obj_scene(tmp_path / "s"), f"objects={{path: {models}}}")
     assert pr.path.startswith("objects") and "models_info.json" in pr.message
+
+
+# --------------------------------------------------------------------------- 14. an object in the wrong unit
+
+
+def test_an_object_in_the_wrong_unit_is_located_by_validate(tmp_path):
+    """Its size says so before any work: a BOP folder whose models are in metres (its diameter,
+    0.139 'mm', from models_info.json) and mesh files whose declared unit makes them 50 m or 0.14 mm
+    across (the build had stopped in its arrange jobs, naming no field)."""
+    import trimesh
+
+    spec = obj_scene(tmp_path)
+    bop = tmp_path / "models_m"
+    bop.mkdir()
+    trimesh.creation.box((0.08, 0.08, 0.08)).export(bop / "obj_000001.ply")  # metres, where BOP means mm
+    (pr,) = problems(spec, "objects={path: models_m}")
+    assert pr.path == "objects.path" and "obj_000001" in pr.message and "millimetres" in pr.message
+    trimesh.creation.icosphere(radius=25.0).export(tmp_path / "ball_mm.stl")
+    trimesh.creation.box((0.08, 0.08, 0.08)).export(tmp_path / "box_m.stl")
+    (big, small) = problems(spec, "objects={meshes: [{path: ball_mm.stl, unit: m}, {path: box_m.stl, unit: mm}]}")
+    assert big.path == "objects.meshes.0.unit" and "at least 50 m across with unit 'm'" in big.message
+    assert small.path == "objects.meshes.1.unit" and "at most 0.0001386 m across with unit 'mm'" in small.message
+    compile_spec(load_spec(spec, ["objects={meshes: [{path: ball_mm.stl, unit: mm}, {path: box_m.stl, unit: m}]}"]))
+
+
+def test_objects_without_an_id_take_the_lowest_free_ids_in_order(tmp_path):
+    """[can, block, ball (obj_id: 7)] is 1, 2, 7, as a BOP user numbers models (it had been 8, 9, 7)."""
+    import trimesh
+
+    from specsynth.assets.resolve import object_fingerprints, _sources
+    from specsynth.spec.models import Objects
+
+    for name in ("can", "block", "ball"):
+        trimesh.creation.box((0.05, 0.05, 0.05)).export(tmp_path / f"{name}.stl")
+    objects = Objects(meshes=[{"path": "can.stl", "unit": "m"}, {"path": "block.stl", "unit": "m"},
+                              {"path": "ball.stl", "unit": "m", "obj_id": 7}])
+    assert {s.path.name: s.obj_id for s in _sources(objects, tmp_path)} == {"can.stl": 1, "block.stl": 2, "ball.stl": 7}
+    assert len(object_fingerprints(objects, tmp_path)) == 3
+    objects = Objects(builtin=["duck", {"name": "mug", "obj_id": 1}], meshes=[{"path": "can.stl", "unit": "m"}])
+    assert {s.name: s.obj_id for s in _sources(objects, tmp_path)} == {"duck": 2, "mug": 1, "obj_000003": 3}

@@ -5,8 +5,9 @@ by content hash under ``<cache>/assets/``; backends and the annotation engine re
 No network, ever: BOP models come from a folder the user downloaded, built-ins from the
 ``pybullet_data`` package, HDRIs from the library (``library/hdris.py``).
 
-The compile path calls only :func:`object_fingerprints` (hashes of source bytes, no mesh parsing),
-so heavy imports (trimesh, PIL) happen inside the conversion functions.
+The compile path calls :func:`object_fingerprints` (hashes of source bytes, no mesh parsing) and
+:func:`object_size_problems` (a user's mesh file parsed once for its size, cached by its bytes), so
+heavy imports (trimesh, PIL) happen inside the conversion functions.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import difflib
 import functools
 import hashlib
 import importlib.util
+import itertools
 import json
 import math
 import os
@@ -584,14 +586,12 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
             if item.obj_id in used:
                 raise AssetError(f"obj_id {item.obj_id} is used twice (by {getattr(item, 'name', None) or item.path})")
             used.add(item.obj_id)
-    next_id = max(used, default=0) + 1
     names = {s.name for s in out}
     for kind, item, field in pending:
         oid = item.obj_id
-        if oid is None:
-            oid = next_id
+        if oid is None:  # the lowest id no model has, in the order listed: [a, b, c (obj_id: 7)] -> 1, 2, 7
+            oid = next(i for i in itertools.count(1) if i not in used)
             used.add(oid)
-            next_id = max(used) + 1
         if kind == "builtin" and item.name.startswith(CATALOGUE):
             src = _Source(item.name, "catalogue", oid, None, "m", f"furniture:{_catalogue_item(item.name).id}")
         elif kind == "builtin":
@@ -615,6 +615,74 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
 def object_fingerprints(objects: spec_mod.Objects, spec_dir: Path) -> dict[str, str]:
     """name -> content hash of each object's source files (+ unit, conversion version). Fast."""
     return {s.name: s.fingerprint() for s in _sources(objects, spec_dir)}
+
+
+def object_size_problems(objects: spec_mod.Objects, spec_dir: Path) -> list[AssetError]:
+    """Each of the user's objects whose size says its unit is wrong, before any work (the build's
+    conversion checks it exactly, after physics has started): a BOP model by its models_info.json
+    diameter (millimetres), a mesh file by its bounding box in its declared unit, whose diagonal
+    bounds its diameter from above and, over the square root of 3, from below."""
+    problems = []
+    sources = [s for s in _sources(objects, spec_dir) if s.kind in ("bop", "mesh")]
+    info = _bop_diameters(objects, Path(spec_dir)) if any(s.kind == "bop" for s in sources) else {}
+    for src in sources:
+        if src.kind == "bop":
+            mm = info.get(src.obj_id)
+            if mm is not None and not MIN_DIAMETER <= mm / 1000.0 <= MAX_DIAMETER:
+                problems.append(AssetError(
+                    f"{src.name}: diameter {mm:.4g} in models_info.json, which BOP reads as millimetres: "
+                    f"objects are {MIN_DIAMETER * 1000:g} mm to {MAX_DIAMETER:g} m across; scale the models to "
+                    "millimetres (BOP's unit)", field="objects.path"))
+            continue
+        try:
+            lo, hi = _diameter_bounds(src)
+        except AssetError as e:  # a mesh that cannot be read: named here, not in a worker
+            problems.append(AssetError(str(e), field=src.field))
+            continue
+        if hi < MIN_DIAMETER or lo > MAX_DIAMETER:
+            problems.append(AssetError(
+                f"{src.path.name}: {'at most' if hi < MIN_DIAMETER else 'at least'} "
+                f"{hi if hi < MIN_DIAMETER else lo:.4g} m across with unit {src.unit!r}; objects are "
+                f"{MIN_DIAMETER * 1000:g} mm to {MAX_DIAMETER:g} m across: is the file in another unit?",
+                field=src.field.removesuffix(".path") + ".unit"))
+    return problems
+
+
+def _bop_diameters(objects: spec_mod.Objects, spec_dir: Path) -> dict[int, float]:
+    """obj_id -> diameter (the folder's units, millimetres for BOP) from its models_info.json, as
+    given or as computed (and cached) when it has none."""
+    folder = expand_path(objects.path, spec_dir, "objects.path")
+    given = folder / "models_info.json"
+    try:
+        info = json.loads(given.read_text()) if given.is_file() else \
+            bopmodels.computed_models_info(folder, cache_dir(), _model_points)[0]
+        return {int(k): float(v["diameter"]) for k, v in info.items()
+                if isinstance(v, dict) and isinstance(v.get("diameter"), (int, float))}
+    except (OSError, ValueError, TypeError, RecursionError):
+        return {}  # _bop_folder names a corrupt file
+
+
+def _diameter_bounds(src: _Source) -> tuple[float, float]:
+    """(least, greatest) diameter in metres a mesh file's vertices allow, from their bounding box;
+    cached by the file's content, as validate and every build ask again."""
+    cached = cache_dir() / "sizes" / f"{src.fingerprint()}.json"
+    try:
+        lo, hi = json.loads(cached.read_text())
+        return float(lo), float(hi)
+    except (OSError, ValueError, TypeError):
+        pass
+    bounds = _measured_bounds(src)
+    atomic_write_bytes(cached, json.dumps(bounds).encode())
+    return bounds
+
+
+def _measured_bounds(src: _Source) -> tuple[float, float]:
+    mesh, _ = read_any_mesh(src.path)
+    v = np.asarray(mesh.vertices, np.float64)
+    if not len(v) or not np.isfinite(v).all():
+        return 0.0, 0.0  # the conversion names such a mesh; no size to judge here
+    diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) * UNIT_SCALE[src.unit]
+    return diagonal / np.sqrt(3.0), diagonal
 
 
 # --------------------------------------------------------------------------- conversion

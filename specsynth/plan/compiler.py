@@ -23,6 +23,7 @@ from ..assets.resolve import (
     expand_path,
     file_digest,
     object_fingerprints,
+    object_size_problems,
 )
 from ..model import error as error_control
 from ..output_api import active_products
@@ -318,6 +319,7 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
         notes += bop_folder_notes(spec.objects, loaded.directory)
         problems += check_objects(spec, loaded, len(asset_hashes))
+        problems += [loaded.locate(e.field, str(e)) for e in object_size_problems(spec.objects, loaded.directory)]
     except AssetError as e:
         field = e.field or "objects"
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))

@@ -116,13 +116,13 @@ class Material(Strict):
 class MeshObject(Strict):
     path: str = Field(description="Mesh file (PLY/OBJ/GLB/STL), relative to the spec file.")
     unit: Literal["m", "cm", "mm"] = Field(description="Length unit of the mesh file.")
-    obj_id: int | None = Field(None, ge=1, description="Object id; default: next free id.")
+    obj_id: int | None = Field(None, ge=1, description="Object id; default: the lowest id no other model has, in the order listed.")
     name: str | None = None
 
 
 class BuiltinObject(Strict):
     name: str = Field(description="pybullet_data asset, e.g. duck, teddy, mug, random_urdfs/000.")
-    obj_id: int | None = Field(None, ge=1, description="Object id; default: next free id.")
+    obj_id: int | None = Field(None, ge=1, description="Object id; default: the lowest id no other model has, in the order listed.")
 
 
 class Objects(Strict):
