@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import struct
 import subprocess
 import sys
@@ -1046,3 +1047,59 @@ def test_objects_without_an_id_take_the_lowest_free_ids_in_order(tmp_path):
     assert len(object_fingerprints(objects, tmp_path)) == 3
     objects = Objects(builtin=["duck", {"name": "mug", "obj_id": 1}], meshes=[{"path": "can.stl", "unit": "m"}])
     assert {s.name: s.obj_id for s in _sources(objects, tmp_path)} == {"duck": 2, "mug": 1, "obj_000003": 3}
+
+
+# --------------------------------------------------------------------------- 15. scene files the arrange jobs could not use
+
+
+FLOOR = "{name: floor, source: {box: [2, 2, 0.1]}, transform: {translation: [0, 0, -0.05]}}"
+STAGE = "[{name: st, polygon: [[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]], height: 0.0}]"
+
+
+@pytest.mark.parametrize("body, field, says", [
+    (f"meshes: [{FLOOR}]\nstages: {STAGE}\nfocus: [{{polygon: [[0, 0], [0, 0], [0, 0]], height: 0}}]",
+     "focus.0.polygon", "polygon has zero area"),
+    (f"meshes: [{FLOOR}, {{name: c, source: {{tube: {{points: [[0, 0, 1], [0, 0, 1]], radius: 0.01}}}}}}]\nstages: {STAGE}",
+     "meshes.1.source.tube.points", "two distinct points"),
+    (f"meshes: [{FLOOR}, {{name: c, source: {{box: [1e300, 1e300, 0.1]}}}}]\nstages: {STAGE}",
+     "meshes.1.source.box", "beyond 10000 m"),
+    (f"meshes: [{FLOOR}]\nstages: {STAGE.replace('height: 0.0', 'height: 1e300')}", "stages.0.height", "10000"),
+    (f"meshes: [{FLOOR}, {{name: c, source: {{box: [1, 1, 1]}}, transform: {{translation: [1e300, 0, 0]}}}}]\nstages: {STAGE}",
+     "meshes.1.transform.translation", "beyond 10000 m"),
+    ("stages: auto", "(top)", "this scene has none"),
+])
+def test_a_scene_file_the_arrange_jobs_could_not_use_is_located_by_validate(tmp_path, body, field, says):
+    """Each had passed validate and failed every arrange job, some with a raw pydantic dump that
+    quoted the file's values and named neither file nor line."""
+    spec = obj_scene(tmp_path)
+    (tmp_path / "scene.yaml").write_text(f"name: s\n{body}\n")
+    (pr,) = problems(spec)
+    lines = [line for line in pr.message.splitlines() if f": {field}: " in line]
+    assert lines and "scene.yaml:" in lines[0] and says in lines[0], pr.message
+    assert field == "(top)" or re.search(r"scene\.yaml:\d+:\d+: ", lines[0]), lines[0]
+
+
+def _gltf_triangle(path: Path, indices: tuple[int, int, int]) -> Path:
+    import base64
+
+    data = struct.pack("<9f", 0, 0, 0, 0.05, 0, 0, 0, 0.05, 0) + struct.pack("<3I", *indices)
+    path.write_text(json.dumps({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [0.05, 0.05, 0]},
+                      {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 12}],
+        "buffers": [{"byteLength": 48, "uri": "data:application/octet-stream;base64," + base64.b64encode(data).decode()}]}))
+    return path
+
+
+def test_a_gltf_index_past_its_vertices_is_named(tmp_path):
+    """A triangle's index 7 of 3 vertices: validate locates the object's mesh and `scenes show`
+    names the file (both had failed with a bare 'IndexError: index 7 is out of bounds')."""
+    bad = _gltf_triangle(tmp_path / "bad.gltf", (0, 1, 7))
+    (pr,) = problems(obj_scene(tmp_path / "s"), f"objects={{meshes: [{{path: {bad}, unit: m}}]}}")
+    assert pr.path == "objects.meshes.0.path" and "bad.gltf: face indices out of range (0..2" in pr.message
+    r = cli("scenes", "show", bad, "--out", tmp_path / "top.png")
+    assert r.returncode == 2 and "bad.gltf: face indices out of range" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    good = _gltf_triangle(tmp_path / "good.gltf", (0, 1, 2))
+    compile_spec(load_spec(obj_scene(tmp_path / "s"), [f"objects={{meshes: [{{path: {good}, unit: m}}]}}"]))

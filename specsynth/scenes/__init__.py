@@ -183,9 +183,14 @@ def read_scene_file(path: Path) -> SceneFile:
             except yaml.YAMLError:
                 root = None
         lines = []
-        for err in e.errors():
+        errors = e.errors()
+        # `stages: [...] | auto`: a list with a bad stage also fails the 'auto' branch; that says nothing
+        literal = [err for err in errors if any(isinstance(x, str) and x.startswith("literal[") for x in err["loc"])]
+        if any(err not in literal and any(isinstance(x, int) for x in err["loc"]) for err in errors):
+            errors = [err for err in errors if err not in literal]
+        for err in errors:
             # Union members add their class name to the location; drop those for readability.
-            loc = [x for x in err["loc"] if not (isinstance(x, str) and x[:1].isupper())]
+            loc = [x for x in err["loc"] if not (isinstance(x, str) and (x[:1].isupper() or x.startswith(("list[", "literal["))))]
             if "source" in loc:  # drop the discriminator tag: it repeats the key the user wrote
                 i = loc.index("source")
                 if i + 1 < len(loc) and loc[i + 1] in ("box", "plane", "cylinder", "tube", "file"):

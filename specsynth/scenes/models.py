@@ -21,6 +21,26 @@ class _Strict(BaseModel):
 Vec3 = tuple[float, float, float]
 Color = tuple[float, float, float]
 
+# Metres: no size, point or height of a scene file lies further out (a glTF's geometry is held to
+# the same, assets.meshfiles.gltf.MAX_COORDINATE); past it float32 renderers and physics lose the
+# millimetres a scene needs, and 1e300 overflows.
+MAX_EXTENT = 10_000.0
+
+
+def _within(values, what: str):
+    if any(abs(x) > MAX_EXTENT for x in values):
+        raise ValueError(f"{what} beyond {MAX_EXTENT:g} m")
+    return values
+
+
+def _polygon(v: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """A polygon of positive area within MAX_EXTENT (a degenerate one has no inside to drop on)."""
+    _within([c for p in v for c in p], "a polygon's corner")
+    area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(v, v[1:] + v[:1]))
+    if abs(area2) < 1e-8:
+        raise ValueError("polygon has zero area")
+    return v
+
 
 def _check_color(v):
     if v is not None and not all(0.0 <= c <= 1.0 for c in v):
@@ -36,7 +56,7 @@ class Box(_Strict):
     def _pos(cls, v):
         if min(v) <= 0:
             raise ValueError("box sizes must be > 0")
-        return v
+        return _within(v, "a box size")
 
 
 class Plane(_Strict):
@@ -47,12 +67,12 @@ class Plane(_Strict):
     def _pos(cls, v):
         if min(v) <= 0:
             raise ValueError("plane sizes must be > 0")
-        return v
+        return _within(v, "a plane size")
 
 
 class CylinderSize(_Strict):
-    radius: float = Field(gt=0, description="Metres.")
-    height: float = Field(gt=0, description="Metres; centred at the mesh origin, axis +Z.")
+    radius: float = Field(gt=0, le=MAX_EXTENT, description="Metres.")
+    height: float = Field(gt=0, le=MAX_EXTENT, description="Metres; centred at the mesh origin, axis +Z.")
 
 
 class Cylinder(_Strict):
@@ -63,6 +83,14 @@ class TubeSpec(_Strict):
     points: list[Vec3] = Field(min_length=2, max_length=256, description="Points the tube's axis passes "
                                "through (metres, mesh frame); a smooth curve is drawn through them.")
     radius: float = Field(gt=0, le=1, description="Metres.")
+
+    @field_validator("points")
+    @classmethod
+    def _a_curve(cls, v):
+        _within([c for p in v for c in p], "a point")
+        if len(set(v)) < 2:
+            raise ValueError("a tube needs two distinct points")
+        return v
 
 
 class Tube(_Strict):
@@ -122,6 +150,11 @@ class Transform(_Strict):
         description="Roll, pitch, yaw in degrees (fixed axes X, Y, Z: R = Rz Ry Rx), or a 3x3 rotation matrix.",
     )
     scale: Union[float, Vec3] = Field(1.0, description="Uniform or per-axis scale (applied in the model frame).")
+
+    @field_validator("translation")
+    @classmethod
+    def _near(cls, v):
+        return _within(v, "a translation")
 
     @field_validator("rotation")
     @classmethod
@@ -236,6 +269,11 @@ class LightDef(_Strict):
     def _color(cls, v):
         return _check_color(v)
 
+    @field_validator("translation", "look_at", "size")
+    @classmethod
+    def _near(cls, v, info):
+        return v if v is None else _within(v, f"light {info.field_name}")
+
     @model_validator(mode="after")
     def _aim(self):
         if self.look_at is not None and math.dist(self.look_at, self.translation) < 1e-9:
@@ -277,20 +315,22 @@ class StageDef(_Strict):
     polygon: list[tuple[float, float]] = Field(
         min_length=3, description="Support area, [[x, y], ...] world metres; any winding (stored CCW)."
     )
-    height: float = Field(description="World Z of the support surface, metres.")
+    height: float = Field(ge=-MAX_EXTENT, le=MAX_EXTENT, description="World Z of the support surface, metres.")
 
     @field_validator("polygon")
     @classmethod
     def _area(cls, v):
-        area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(v, v[1:] + v[:1]))
-        if abs(area2) < 1e-8:
-            raise ValueError("polygon has zero area")
-        return v
+        return _polygon(v)
 
 
 class FocusArea(_Strict):
     polygon: list[tuple[float, float]] = Field(min_length=3, description="[[x, y], ...] world metres.")
-    height: float = Field(description="World Z of the surface, metres.")
+    height: float = Field(ge=-MAX_EXTENT, le=MAX_EXTENT, description="World Z of the surface, metres.")
+
+    @field_validator("polygon")
+    @classmethod
+    def _area(cls, v):  # converted to a stage's polygon in the arrange jobs: checked as one here
+        return _polygon(v)
 
 
 class SceneFile(_Strict):
@@ -318,6 +358,8 @@ class SceneFile(_Strict):
 
     @model_validator(mode="after")
     def _unique(self):
+        if self.auto_stages and not self.meshes:
+            raise ValueError("stages: auto finds stages in the meshes, and this scene has none; add meshes or declare stages")
         for what, items in (("mesh", self.meshes), ("stage", [] if self.auto_stages else self.stages)):
             seen = set()
             for it in items:

@@ -38,6 +38,7 @@ from .part import (
     Y_UP_TO_Z_UP,
     MeshFileError,
     Part,
+    check_face_indices,
     checked_resolver,
     concatenate,
     read_file,
@@ -317,6 +318,7 @@ def read_parts(path: Path, texture_cache: Path) -> list[Part]:
         geom = scene.geometry[geom_name]
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             continue  # points and lines are not surfaces
+        check_face_indices(path, len(geom.vertices), geom.faces)
         triangles += len(geom.faces)
         if triangles > MAX_TRIANGLES:
             raise MeshFileError(f"{path}: more than {MAX_TRIANGLES:,} triangles; decimate it first")

@@ -25,6 +25,16 @@ class MeshFileError(ValueError):
     """A mesh file that cannot be used; the message names the file and, where known, the part."""
 
 
+def check_face_indices(path: Path, n_vertices: int, faces) -> None:
+    """Every triangle's indices name one of the ``n_vertices`` (trimesh reads a glTF's indices as
+    given, and its normals then fail with a bare IndexError)."""
+    import numpy as np
+
+    f = np.asarray(faces)
+    if f.size and (f.min() < 0 or f.max() >= n_vertices):
+        raise MeshFileError(f"{path}: face indices out of range (0..{n_vertices - 1}, found {int(f.min())}..{int(f.max())})")
+
+
 @functools.lru_cache(maxsize=1)
 def _package_data() -> tuple[Path, ...]:
     """Installed package data whose files name each other across their own folders (pybullet_data's

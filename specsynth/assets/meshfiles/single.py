@@ -11,7 +11,7 @@ import numpy as np
 
 from ..meshio import MeshData
 from . import gltf, obj
-from .part import MeshFileError, checked_resolver
+from .part import MeshFileError, check_face_indices, checked_resolver
 
 
 FORMATS = {".stl": "STL", ".off": "OFF", ".obj": "Wavefront OBJ", ".gltf": "glTF", ".glb": "glTF binary (GLB)"}
@@ -38,6 +38,7 @@ def read_single(path: Path) -> MeshData:
                             f"truncated, or another format under this name?") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0 or len(loaded.faces) == 0:
         raise MeshFileError(f"{path}: empty mesh (no vertices or triangles)")
+    check_face_indices(path, len(loaded.vertices), loaded.faces)
     uv = colors = None
     vis = loaded.visual
     if getattr(vis, "kind", None) == "texture" and getattr(vis, "uv", None) is not None:
