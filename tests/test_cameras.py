@@ -152,6 +152,47 @@ def test_sample_camera(seed, az, el, d, inplane):
     np.testing.assert_array_equal(s.t_w2c, s2.t_w2c)
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    offset=st.tuples(st.floats(0, 1), st.floats(0, 1)).map(sorted),
+    cx=st.floats(0.05, 0.95), cy=st.floats(0.05, 0.95), fy_over_fx=st.floats(0.5, 2.0),
+)
+def test_an_aim_offset_puts_the_target_where_it_says_inside_the_image(seed, offset, cx, cy, fy_over_fx):
+    """The focused object's centre appears ``f`` of the way from the principal point to the largest
+    ellipse about it inside the image, f drawn in the range: always in the image. The camera stays
+    where it was (distance, azimuth, elevation kept); only its direction turns. Two more draws."""
+    intr = Intrinsics(width=640, height=480, fx=572.0, fy=572.0 * fy_over_fx, cx=cx * 639, cy=cy * 479)
+    cams = Cameras(distance=(0.5, 1.2), aim_offset=tuple(offset), inplane=(-30, 30))
+    target = np.array([0.3, -0.1, 0.05])
+    rng = np.random.default_rng(seed)
+    s = sample_camera(rng, target, cams, intr)
+    assert_rotation(s.R_w2c)
+    assert abs(np.linalg.norm(s.center - target) - s.distance) < 1e-9 * (1 + s.distance)
+    u, v = project(intrinsics_matrix(intr), s.R_w2c, s.t_w2c, [target])[0]
+    a, b = min(intr.cx, 639 - intr.cx), min(intr.cy, 479 - intr.cy)
+    f = np.hypot((u - intr.cx) / a, (v - intr.cy) / b)
+    assert offset[0] - 1e-7 <= f <= offset[1] + 1e-7
+    assert -1e-6 <= u <= 639 + 1e-6 and -1e-6 <= v <= 479 + 1e-6
+    ref = np.random.default_rng(seed)
+    ref.random(4)
+    if offset[1] > 0:
+        ref.random(2)
+    assert rng.random() == ref.random()
+    centred = sample_camera(np.random.default_rng(seed), target, Cameras(distance=(0.5, 1.2), inplane=(-30, 30)), intr)
+    np.testing.assert_allclose(centred.center, s.center, atol=1e-12)
+
+
+def test_no_aim_offset_draws_the_cameras_drawn_before_there_was_one():
+    """A spec that sets no offset builds the images it built before the field existed."""
+    cams = Cameras(distance=(0.5, 1.2), inplane=(-30, 30))
+    for seed in range(20):
+        a = sample_camera(np.random.default_rng(seed), np.zeros(3), cams, INTR)
+        b = sample_camera(np.random.default_rng(seed), np.zeros(3), cams)
+        np.testing.assert_array_equal(a.R_w2c, b.R_w2c)
+        np.testing.assert_allclose(project(K, a.R_w2c, a.t_w2c, [np.zeros(3)])[0], PP, atol=1e-6)
+
+
 @given(seed=st.integers(0, 2**32 - 1), el=st.tuples(st.floats(-90, 90), st.floats(-90, 90)).map(sorted))
 def test_area_sampling_keeps_the_range_and_the_draw_count(seed, el):
     cams = Cameras(elevation=el, elevation_sampling="area")

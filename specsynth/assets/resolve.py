@@ -587,10 +587,14 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
                 raise AssetError(f"obj_id {item.obj_id} is used twice (by {getattr(item, 'name', None) or item.path})")
             used.add(item.obj_id)
     names = {s.name for s in out}
+    # A BOP folder's ids are its dataset's (LM-O's 1, 5, 6, ... leave LM's 2, 3, 4 out): ids given
+    # automatically start after its largest, and are the lowest free ones in the order listed:
+    # [a, b, c (obj_id: 7)] -> 1, 2, 7.
+    first_free = max((s.obj_id for s in out), default=0) + 1
     for kind, item, field in pending:
         oid = item.obj_id
-        if oid is None:  # the lowest id no model has, in the order listed: [a, b, c (obj_id: 7)] -> 1, 2, 7
-            oid = next(i for i in itertools.count(1) if i not in used)
+        if oid is None:
+            oid = next(i for i in itertools.count(first_free) if i not in used)
             used.add(oid)
         if kind == "builtin" and item.name.startswith(CATALOGUE):
             src = _Source(item.name, "catalogue", oid, None, "m", f"furniture:{_catalogue_item(item.name).id}")

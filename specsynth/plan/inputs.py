@@ -154,6 +154,7 @@ class CameraDraws(Cut):
     elevation_sampling: Annotated[str, From("elevation_sampling")]
     distance: Annotated[tuple[float, float], From("distance")]
     inplane: Annotated[tuple[float, float], From("inplane")]
+    aim_offset: Annotated[tuple[float, float], From("aim_offset")]
     max_tries: Annotated[int, From("max_tries")]
     clearance: Annotated[float, From("clearance")]
 

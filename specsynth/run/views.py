@@ -57,7 +57,7 @@ class ViewStep:
             a = framed.assets[focus.obj_id]
             centre = np.asarray(a.bbox_min) + 0.5 * np.asarray(a.extents)
             target = (focus.matrix @ np.append(centre, 1.0))[:3] + origin  # world frame
-            s = cameras.sample_camera(rng, target, inp.cameras)
+            s = cameras.sample_camera(rng, target, inp.cameras, inp.intrinsics)
             t0 = time.perf_counter()
             cam = self.optics.camera(s.R_w2c, s.t_w2c, origin)
             vf = (annot.visib_fract_lens(cam, warp, inp.intrinsics.distortion, focus.inst, inp.visibility.delta)

@@ -116,13 +116,13 @@ class Material(Strict):
 class MeshObject(Strict):
     path: str = Field(description="Mesh file (PLY/OBJ/GLB/STL), relative to the spec file.")
     unit: Literal["m", "cm", "mm"] = Field(description="Length unit of the mesh file.")
-    obj_id: int | None = Field(None, ge=1, description="Object id; default: the lowest id no other model has, in the order listed.")
+    obj_id: int | None = Field(None, ge=1, description="Object id; default: the lowest id no other model has, in the order listed (after a BOP folder's ids).")
     name: str | None = None
 
 
 class BuiltinObject(Strict):
     name: str = Field(description="pybullet_data asset, e.g. duck, teddy, mug, random_urdfs/000.")
-    obj_id: int | None = Field(None, ge=1, description="Object id; default: the lowest id no other model has, in the order listed.")
+    obj_id: int | None = Field(None, ge=1, description="Object id; default: the lowest id no other model has, in the order listed (after a BOP folder's ids).")
 
 
 class Objects(Strict):
@@ -483,6 +483,11 @@ class Cameras(Strict):
         "nearer a real test set's elevations.")
     distance: FloatRange(0.02, 1e4) = Field((0.4, 1.2), description="Distance to the focused object's centre, metres (at least 2 cm: nearer is inside the object).")
     inplane: FloatRange(-360, 360) = Field((0.0, 0.0), description="In-plane rotation about the optical axis, degrees.")
+    aim_offset: FloatRange(0.0, 1.0) = Field(
+        (0.0, 0.0), description="Where the focused object's centre appears: 0 at the principal point (the paper's "
+        "cameras point at it), 1 on the largest ellipse about the principal point inside the image; drawn per "
+        "camera uniform in this range, in a uniform direction. Above 0 the focused object is no longer always in "
+        "the middle of the image, as in photographs of a desk.")
     max_tries: int = Field(10, ge=1, le=1000, description="Camera resamples before a view is dropped.")
     depth_of_field: DepthOfField | None = Field(
         None, description="Defocus blur: a thin lens focused on the focused object. Masks and boxes stay those of "

@@ -119,13 +119,16 @@ def elevation_on_area(u: float, lo: float, hi: float) -> float:
     return min(max(el, lo), hi)
 
 
-def sample_camera(rng: np.random.Generator, target, cams: "Cameras") -> CameraSample:
+def sample_camera(rng: np.random.Generator, target, cams: "Cameras", intr: "Intrinsics | None" = None) -> CameraSample:
     """One camera around ``target`` with parameters uniform in the spec's ranges, the elevation in
     angle or over the sphere's area (``cams``: the spec's cameras or the view step's cut of them,
-    ``specsynth.plan.inputs.CameraDraws``).
+    ``specsynth.plan.inputs.CameraDraws``), turned so that ``target`` appears ``aim_offset`` away
+    from the principal point of ``intr`` (``aim_off``).
 
-    Always consumes exactly one ``rng.random(4)`` draw (azimuth, elevation, distance, in-plane,
-    in that order), degenerate ranges included, so a job's seed fixes the whole camera sequence.
+    Consumes exactly one ``rng.random(4)`` draw (azimuth, elevation, distance, in-plane, in that
+    order), degenerate ranges included, and with an ``aim_offset`` above 0 one ``rng.random(2)``
+    more (its size, its direction): a job's seed fixes the whole camera sequence, and a spec
+    without an offset draws the cameras it drew before there was one.
     """
     u = rng.random(4)
     ranges = (cams.azimuth, cams.elevation, cams.distance, cams.inplane)
@@ -133,7 +136,38 @@ def sample_camera(rng: np.random.Generator, target, cams: "Cameras") -> CameraSa
     if cams.elevation_sampling == "area":
         el = elevation_on_area(float(u[1]), *cams.elevation)
     R, t = camera_pose(target, az, el, dist, inplane)
+    lo, hi = getattr(cams, "aim_offset", (0.0, 0.0))
+    if hi > 0:
+        if intr is None:
+            raise ValueError("cameras.aim_offset needs the intrinsics to place the target in the image")
+        f_u, phi_u = rng.random(2)
+        R, t = aim_off(R, t, intr, lo + float(f_u) * (hi - lo), 2.0 * math.pi * float(phi_u))
     return CameraSample(R_w2c=R, t_w2c=t, azimuth=az, elevation=el, distance=dist, inplane=inplane)
+
+
+def aim_off(R_w2c: np.ndarray, t_w2c: np.ndarray, intr: "Intrinsics", fraction: float,
+            angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """A camera turned about its centre so that what lay on its optical axis appears at
+    ``fraction`` of the way from the principal point to the largest ellipse about it inside the
+    image, in the image direction ``angle`` (radians from +x towards +y)."""
+    a = min(intr.cx, intr.width - 1 - intr.cx)
+    b = min(intr.cy, intr.height - 1 - intr.cy)
+    du, dv = fraction * a * math.cos(angle), fraction * b * math.sin(angle)
+    ray = np.array([du / intr.fx, dv / intr.fy, 1.0])
+    ray /= np.linalg.norm(ray)
+    Q = _rotation_between(np.array([0.0, 0.0, 1.0]), ray)
+    return Q @ np.asarray(R_w2c, np.float64), Q @ np.asarray(t_w2c, np.float64)
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The least rotation taking unit vector ``a`` to unit vector ``b`` (not opposite to ``a``)."""
+    axis = np.cross(a, b)
+    s, c = float(np.linalg.norm(axis)), float(a @ b)
+    if s < 1e-15:
+        return np.eye(3)
+    k = axis / s
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
 
 
 def intrinsics_matrix(intr: "Intrinsics") -> np.ndarray:
