@@ -177,9 +177,11 @@ def _crashy(spec_file: Path, cam: int, *extra: str):
 
 
 def test_crashing_renderer_is_retried_then_reported(spec_file, tmp_path, monkeypatch):
-    """A render that segfaults its worker every time: run once among the others (the crash takes
-    the pool down, so every job in flight is suspect and none uses up a retry), then alone, then
-    once more alone for its one retry; then reported with its tries, the rest complete."""
+    """A render that segfaults its worker every time. Its arrangement's renders go to a worker
+    together (another arrangement is still to come): the group runs once among the others (the
+    crash takes the pool down, so every call in flight is suspect and none uses up a retry), then
+    alone, then once more alone for its one retry; then it is split into single renders, and the
+    bad one runs the same three times and is reported with its tries; the rest complete."""
     log = tmp_path / "runs.log"
     monkeypatch.setenv("CRASHY_LOG", str(log))  # the crashy backend logs each run's pid
     s = build(_crashy(spec_file, 1), tmp_path / "crash", jobs=2, retries=1)
@@ -187,8 +189,8 @@ def test_crashing_renderer_is_retried_then_reported(spec_file, tmp_path, monkeyp
     assert len(failed) == 1 and failed[0]["job"] == "arr=000001/cam=001", s.failures
     assert "BrokenProcessPool" in failed[0]["error"]
     pids = log.read_text().split()
-    assert failed[0]["tries"] == len(pids) == 3  # 1 + 1 alone + 1 retry
-    assert len(set(pids)) == 3  # each crash killed its worker: every try ran in a new process
+    assert failed[0]["tries"] == 3 and len(pids) == 6  # in its group 1 + 1 alone + 1 retry; then alone the same
+    assert len(set(pids)) == 6  # each crash killed its worker: every try ran in a new process
     assert s.stages["render"].failed == 1
     assert s.images == s.views_accepted - 1  # the rest of the build completed
     assert json.loads((tmp_path / "crash" / "failures.json").read_text()) == s.failures
