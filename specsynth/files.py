@@ -37,7 +37,19 @@ def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:
     real = Path(os.path.realpath(p))
     if real == real.parent:
         raise UnsafeOutput(f"{what} {p}: the root of the file system; give a folder of its own to write into")
+    long = next((part for part in real.parts if len(os.fsencode(part)) > NAME_MAX), None)
+    if long is not None:
+        raise UnsafeOutput(f"{what}: a folder name of {len(os.fsencode(long))} bytes, over the file system's "
+                           f"{NAME_MAX}; give a shorter one")
+    if len(os.fsencode(str(real))) > PATH_MAX - PATH_ROOM:
+        raise UnsafeOutput(f"{what}: a path of {len(os.fsencode(str(real))):,} bytes; the files written under it "
+                           f"need up to {PATH_ROOM} more, within the system's {PATH_MAX:,}: give a shorter one")
     return p
+
+
+NAME_MAX = 255  # bytes in one file or folder name (Linux, macOS)
+PATH_MAX = 4096  # bytes in a whole path (Linux)
+PATH_ROOM = 512  # what a build adds under its folder (store keys, staging, BOP's nested names), with room to spare
 
 
 def output_file(path: str | os.PathLike, what: str) -> Path:

@@ -1103,3 +1103,27 @@ def test_a_gltf_index_past_its_vertices_is_named(tmp_path):
     assert r.returncode == 2 and "bad.gltf: face indices out of range" in r.stderr and "Traceback" not in r.stderr, r.stderr
     good = _gltf_triangle(tmp_path / "good.gltf", (0, 1, 2))
     compile_spec(load_spec(obj_scene(tmp_path / "s"), [f"objects={{meshes: [{{path: {good}, unit: m}}]}}"]))
+
+
+def test_an_out_path_too_long_for_the_file_system_is_refused_before_any_work(tmp_path):
+    """A folder name over 255 bytes, or a path leaving the build too little of the system's 4096
+    bytes for its own files: named at once (the build had failed in its arrange jobs with 'File
+    name too long')."""
+    spec = obj_scene(tmp_path)
+    r = cli("build", spec, "--out", tmp_path / ("x" * 300), "--quiet")
+    assert r.returncode == 2 and "a folder name of 300 bytes, over the file system's 255" in r.stderr, r.stderr
+    deep = tmp_path.joinpath(*["d" * 200] * 19)  # about 3.8 kB
+    r = cli("build", spec, "--out", deep, "--quiet")
+    assert r.returncode == 2 and "the files written under it need up to 512 more" in r.stderr, r.stderr
+    assert not (tmp_path / ("d" * 200)).exists()
+
+
+def test_a_bop_model_of_obj_id_0_is_located(tmp_path, lm_models):
+    import shutil
+
+    models = tmp_path / "models"
+    shutil.copytree(lm_models, models)
+    (models / "models_info.json").unlink()
+    shutil.copy(models / "obj_000001.ply", models / "obj_000000.ply")
+    (pr,) = problems(obj_scene(tmp_path / "s"), f"objects={{path: {models}}}")
+    assert pr.path == "objects.path" and "obj_id 0 (obj_000000)" in pr.message and "start at 1" in pr.message

@@ -60,6 +60,11 @@ def model_ids(folder: Path) -> list[int]:
                   if (m := MODEL_NAME.match(p.name)) and p.is_file() and not p.is_symlink())
 
 
+def bad_model_ids(ids) -> list[int]:
+    """BOP's object ids start at 1 (the toolkit's and every dataset's; 0 marks no object in masks)."""
+    return [i for i in ids if i < 1]
+
+
 def _folder_digest(folder: Path, ids: list[int]) -> str:
     h = hashlib.sha256(f"v{INFO_VERSION}".encode())
     for i in ids:

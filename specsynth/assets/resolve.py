@@ -541,6 +541,10 @@ def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[i
         _, cached = bopmodels.computed_models_info(folder, cache_dir(), _model_points)
         note = (f"objects.path: {folder} has no models_info.json; computed it for its {len(ids)} models as the "
                 f"BOP toolkit's calc_model_info.py does (cached as {cached})")
+    bad = bopmodels.bad_model_ids(ids)
+    if bad:
+        raise AssetError(f"objects.path: {folder} has a model of obj_id {bad[0]} (obj_{bad[0]:06d}); BOP's ids start at "
+                         "1: renumber it", field="objects.path")
     if objects.ids is not None:
         unknown = sorted(set(objects.ids) - set(ids))
         if unknown:
