@@ -107,16 +107,21 @@ def inside(path: str | os.PathLike, root: str | os.PathLike) -> bool:
     return p == r or r in p.parents
 
 
+def plain_relative(rel) -> bool:
+    """Whether ``rel``, read from a file, is a plain relative path: no absolute path, no ``..``,
+    no empty or ``.`` part, no NUL (string checks only, cheap for a dataset's 10^5 names)."""
+    if not isinstance(rel, str) or not rel or "\0" in rel or rel.startswith("/"):
+        return False
+    return not any(part in ("", ".", "..") for part in rel.split("/"))
+
+
 def under(root: str | os.PathLike, rel: str) -> Path | None:
     """``root / rel`` for a path read from a file (a build's own index of its files): a plain
     relative path that stays under ``root`` once links are resolved; None for anything else (an
     absolute path, a ``..``, a link out), which a command then neither writes nor deletes."""
-    if not isinstance(rel, str) or not rel or "\0" in rel:
+    if not plain_relative(rel):
         return None
-    parts = rel.split("/")
-    if rel.startswith("/") or any(part in ("", ".", "..") for part in parts):
-        return None
-    path = Path(root, *parts)
+    path = Path(root, *rel.split("/"))
     return path if inside(path.parent, root) else None
 
 

@@ -1127,3 +1127,17 @@ def test_a_bop_model_of_obj_id_0_is_located(tmp_path, lm_models):
     shutil.copy(models / "obj_000001.ply", models / "obj_000000.ply")
     (pr,) = problems(obj_scene(tmp_path / "s"), f"objects={{path: {models}}}")
     assert pr.path == "objects.path" and "obj_id 0 (obj_000000)" in pr.message and "start at 1" in pr.message
+
+
+def test_verify_follows_no_link_out_of_the_dataset(built, tmp_path):
+    """A dataset file swapped for a link to a copy outside: not read through the link (it had been
+    hashed there and called unchanged), but reported as gone."""
+    from specsynth.run.verify import verify
+
+    rgb = next(built.rglob("rgb/*.jpg"))
+    outside = tmp_path / "copy.jpg"
+    outside.write_bytes(rgb.read_bytes())
+    rgb.unlink()
+    rgb.symlink_to(outside)
+    rel = rgb.relative_to(built).as_posix()
+    assert rel in verify(built)["missing"]

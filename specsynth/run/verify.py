@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..files import read_regular, under
+from ..files import inside, plain_relative, read_regular, under
 from .store import write_json
 
 INDEX = Path(".specsynth") / "outputs.json"
@@ -46,7 +46,7 @@ def read_index(out: Path) -> dict[str, list]:
         return {}
     if not isinstance(index, dict):
         return {}
-    return {rel: entry for rel, entry in index.items() if _an_entry(entry) and under(out, rel) is not None}
+    return {rel: entry for rel, entry in index.items() if _an_entry(entry) and plain_relative(rel)}
 
 
 def _an_entry(entry) -> bool:
@@ -83,8 +83,8 @@ def verify(out: Path) -> dict[str, list[str]]:
     index = read_index(out)
     changed, missing = [], []
     for rel, (_, _, sha) in sorted(index.items()):
-        p = out / rel
-        if not p.is_file():
+        p = under(out, rel)  # a link out of the folder is not followed: what it named counts as gone
+        if p is None or not inside(p, out) or not p.is_file():
             missing.append(rel)
         elif _sha256(p) != sha:
             changed.append(rel)
