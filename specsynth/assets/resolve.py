@@ -625,11 +625,12 @@ def object_fingerprints(objects: spec_mod.Objects, spec_dir: Path) -> dict[str, 
     return {s.name: s.fingerprint() for s in _sources(objects, spec_dir)}
 
 
-def object_size_problems(objects: spec_mod.Objects, spec_dir: Path) -> list[AssetError]:
+def object_size_problems(objects: spec_mod.Objects, spec_dir: Path, fingerprints: dict[str, str]) -> list[AssetError]:
     """Each of the user's objects whose size says its unit is wrong, before any work (the build's
     conversion checks it exactly, after physics has started): a BOP model by its models_info.json
     diameter (millimetres), a mesh file by its bounding box in its declared unit, whose diagonal
-    bounds its diameter from above and, over the square root of 3, from below."""
+    bounds its diameter from above and, over the square root of 3, from below. ``fingerprints``:
+    ``object_fingerprints``' of the same objects (a mesh's size is cached by it)."""
     problems = []
     sources = [s for s in _sources(objects, spec_dir) if s.kind in ("bop", "mesh")]
     info = _bop_diameters(objects, Path(spec_dir)) if any(s.kind == "bop" for s in sources) else {}
@@ -643,7 +644,7 @@ def object_size_problems(objects: spec_mod.Objects, spec_dir: Path) -> list[Asse
                     "millimetres (BOP's unit)", field="objects.path"))
             continue
         try:
-            lo, hi = _diameter_bounds(src)
+            lo, hi = _diameter_bounds(src, fingerprints[src.name])
         except AssetError as e:  # a mesh that cannot be read: named here, not in a worker
             problems.append(AssetError(str(e), field=src.field))
             continue
@@ -670,10 +671,10 @@ def _bop_diameters(objects: spec_mod.Objects, spec_dir: Path) -> dict[int, float
         return {}  # _bop_folder names a corrupt file
 
 
-def _diameter_bounds(src: _Source) -> tuple[float, float]:
+def _diameter_bounds(src: _Source, fingerprint: str) -> tuple[float, float]:
     """(least, greatest) diameter in metres a mesh file's vertices allow, from their bounding box;
     cached by the file's content, as validate and every build ask again."""
-    cached = cache_dir() / "sizes" / f"{src.fingerprint()}.json"
+    cached = cache_dir() / "sizes" / f"{fingerprint}.json"
     try:
         lo, hi = json.loads(cached.read_text())
         return float(lo), float(hi)

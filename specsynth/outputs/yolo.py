@@ -35,7 +35,7 @@ from typing import Sequence
 
 import yaml
 
-from ..files import UnsafeOutput, inside, not_a_file, refuse_links_out
+from ..files import UnsafeOutput, inside, refuse_links_out
 from ..output_api import DatasetWriter, Merge
 from .dataset import coco_box, place_file, write_if_changed
 from .qa import BopImage, list_images
@@ -189,11 +189,9 @@ def _check_rgb(missing: list[Path]) -> None:
 
 def _check_own_files(images: list[BopImage], out: Path) -> None:
     """Export copies the dataset's own images only, before anything is written: a link out of the
-    dataset would copy a file from elsewhere into the export, a FIFO hang the copy."""
+    dataset would copy a file from elsewhere into the export (a FIFO is no image file to
+    ``list_images``, so it is missing already)."""
     for img in images:
-        problem = not_a_file(img.rgb)
-        if problem is not None:
-            raise ExportError(f"{img.rgb}: {problem}; export copies the dataset's image files")
         if not inside(img.rgb, out):
             raise ExportError(f"{img.rgb}: a link out of the dataset folder {out} (to {os.path.realpath(img.rgb)}); "
                               "export copies only the dataset's own files")

@@ -316,10 +316,11 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
         raise SpecError(problems)
     notes: list[str] = [n for n in (principal_point_note(spec.intrinsics),) if n]
     try:
-        asset_hashes = {f"asset:{k}": v for k, v in object_fingerprints(spec.objects, loaded.directory).items()}
+        fingerprints = object_fingerprints(spec.objects, loaded.directory)
+        asset_hashes = {f"asset:{k}": v for k, v in fingerprints.items()}
         notes += bop_folder_notes(spec.objects, loaded.directory)
         problems += check_objects(spec, loaded, len(asset_hashes))
-        problems += [loaded.locate(e.field, str(e)) for e in object_size_problems(spec.objects, loaded.directory)]
+        problems += [loaded.locate(e.field, str(e)) for e in object_size_problems(spec.objects, loaded.directory, fingerprints)]
     except AssetError as e:
         field = e.field or "objects"
         problems.append(loaded.locate(field, str(e).removeprefix(f"{field}: ")))

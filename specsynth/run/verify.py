@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..files import inside, plain_relative, read_regular, under
+from ..files import inside, plain_relative, read_regular
 from .store import write_json
 
 INDEX = Path(".specsynth") / "outputs.json"
@@ -83,8 +83,8 @@ def verify(out: Path) -> dict[str, list[str]]:
     index = read_index(out)
     changed, missing = [], []
     for rel, (_, _, sha) in sorted(index.items()):
-        p = under(out, rel)  # a link out of the folder is not followed: what it named counts as gone
-        if p is None or not inside(p, out) or not p.is_file():
+        p = out.joinpath(*rel.split("/"))  # read_index keeps plain relative paths only
+        if not inside(p, out) or not p.is_file():  # a link out is not followed: what it named counts as gone
             missing.append(rel)
         elif _sha256(p) != sha:
             changed.append(rel)

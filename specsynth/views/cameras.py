@@ -136,7 +136,7 @@ def sample_camera(rng: np.random.Generator, target, cams: "Cameras", intr: "Intr
     if cams.elevation_sampling == "area":
         el = elevation_on_area(float(u[1]), *cams.elevation)
     R, t = camera_pose(target, az, el, dist, inplane)
-    lo, hi = getattr(cams, "aim_offset", (0.0, 0.0))
+    lo, hi = cams.aim_offset
     if hi > 0:
         if intr is None:
             raise ValueError("cameras.aim_offset needs the intrinsics to place the target in the image")
