@@ -71,6 +71,31 @@ def test_randomisation_is_seed_locked_and_leaves_geometry_alone():
     assert off is scene  # off by default: not even a copy
 
 
+def test_lights_cutouts_and_glass_keep_their_materials_when_surfaces_are_swapped():
+    """A texture swap would darken a glowing screen, fill a leaf's cut-out quad and make glass
+    opaque: such surfaces keep their materials, and the others' draws do not move."""
+    from dataclasses import replace
+
+    from specsynth.model.ir import MaterialIR
+
+    scene = load_scene("room", Path(".")).with_objects(())
+    special = (MaterialIR(emission=(4.0, 4.0, 4.0)), MaterialIR(alpha_mode="mask", opacity_texture="leaf.png"),
+               MaterialIR(transmission=1.0, roughness=0.0), MaterialIR(opacity=0.5, alpha_mode="blend"))
+    meshes = list(scene.meshes)
+    for k, mat in enumerate(special):
+        meshes[k] = replace(meshes[k], material=mat)
+    plain = replace(scene, meshes=tuple(meshes))
+    lib = textures.available(cache_dir())
+    out = randomize_scene(plain, OPTS, np.random.default_rng(3), lib, lambda p: True)
+    ref = randomize_scene(scene, OPTS, np.random.default_rng(3), lib, lambda p: True)
+    for k, mat in enumerate(special):
+        got = out.meshes[k].material
+        assert got.texture is None and got.emission == mat.emission and got.alpha_mode == mat.alpha_mode
+        assert got.opacity_texture == mat.opacity_texture and got.transmission == mat.transmission
+    assert out.meshes[len(special):] == ref.meshes[len(special):]
+    assert all(m.material.texture in {str(t.path) for t in lib} for m in out.meshes[len(special):])
+
+
 def test_distractors_are_scene_geometry_and_never_annotated(tmp_path):
     f = tmp_path / "dr.yaml"
     f.write_text(SPEC)

@@ -24,7 +24,7 @@ from typing import Any
 # (physics.arrange's unstacked); distractors may be painted. arrange 6: paint in a toy's hues
 # (run.arrange.PLASTIC_HUES), not any hue. render 5: auto exposure meters 4 x 4 zones
 # (views.sensor.metered_luminance), not single pixels.
-STAGE_VERSIONS = {"arrange": 6, "view": 2, "render": 5}
+STAGE_VERSIONS = {"arrange": 6, "view": 2, "render": 6}
 
 # A backend's own revision is in its plugin object (plugins.BackendPlugin.revision).
 

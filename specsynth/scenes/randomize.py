@@ -36,7 +36,7 @@ def _surface(m: MeshInstance, opts: SceneRandomization, rng, library: list, has_
     # Draw every number whether or not it is used, so one surface's choice never shifts the next's.
     swap, pick, scale = rng.random(), int(rng.integers(max(1, len(library)))), float(rng.uniform(0.5, 2.0))
     dr, ds = rng.uniform(-1.0, 1.0, size=2) * opts.roughness
-    if library and swap < opts.materials and has_uv(m.mesh_path):
+    if library and swap < opts.materials and _swappable(mat) and has_uv(m.mesh_path):
         tex = library[pick]
         s = scale / tex.tile  # repeats per metre of UV (scene UVs are in metres)
         mat = MaterialIR(base_color=(1.0, 1.0, 1.0), use_vertex_colors=False, texture=str(tex.path),
@@ -45,6 +45,14 @@ def _surface(m: MeshInstance, opts: SceneRandomization, rng, library: list, has_
         mat = replace(mat, roughness=float(np.clip(mat.roughness + dr, 0.0, 1.0)),
                       specular=float(np.clip(mat.specular + ds, 0.0, 1.0)))
     return replace(m, material=mat)
+
+
+def _swappable(mat: MaterialIR) -> bool:
+    """A surface whose look a texture may replace: not a light (a screen or a lamp's panel would go
+    dark and the room with it), not cut out by its opacity (a leaf would become its whole quad), not
+    glass (it would turn opaque)."""
+    return (not any(mat.emission) and mat.emission_texture is None and mat.alpha_mode == "opaque"
+            and mat.opacity >= 1.0 and mat.transmission == 0.0)
 
 
 def _light(light: LightIR, opts: SceneRandomization, rng) -> LightIR:
