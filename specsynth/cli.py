@@ -565,7 +565,9 @@ def cmd_fit(args) -> int:
         raise FileNotFoundError(f"{out}: not a file to write the fitted spec to")
     real = measure(real_split, args.models, args.jobs, log)
     jobs = args.jobs or os.cpu_count() or 1
-    edits = [] if args.keep_cameras else fit.geometry_edits(real, args.real)
+    edits = [] if args.keep_cameras else (
+        fit.intrinsics_edits(((im.K, im.width, im.height) for im in real_split.iter_images()), loaded.spec.intrinsics,
+                             args.real) + fit.geometry_edits(real, args.real))
     if args.probe_images:
         stops = first_probe_stops(loaded.spec)
         probe = _fit_probe(args, edits, log, exposure=stops)
@@ -871,7 +873,7 @@ def _dataset_commands(sub) -> None:
                    help="views rendered to fit the sensor (exposure, blur, noise); 0: fit the cameras only")
     p.add_argument("--models", help="BOP models folder, when the real split has no masks and no models/ beside it")
     p.add_argument("--keep-cameras", action="store_true",
-                   help="leave the camera ranges and visibility threshold as the spec has them (the sensor is then "
+                   help="leave the intrinsics, camera ranges and visibility threshold as the spec has them (the sensor is then "
                         "fitted on the spec's own views)")
     p.add_argument("--no-object-colours", action="store_true",
                    help="leave the objects' materials as they are (by default each object shown often enough gets "

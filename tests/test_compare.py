@@ -28,7 +28,8 @@ from specsynth.compare.collect import collect
 from specsynth.compare.comparison import STATISTICS, compare
 from specsynth.compare.gtinfo import complete
 from specsynth.compare.split import SplitError, open_split
-from specsynth.views.cameras import camera_pose
+from specsynth.spec.models import Cameras, Intrinsics
+from specsynth.views.cameras import camera_pose, sample_camera
 
 LMO_IDS = [1, 5, 6, 8, 9, 10, 11, 12]
 DATA = Path(__file__).parent / "data"
@@ -182,6 +183,7 @@ def test_real_lmo_statistics_are_what_the_docs_state(lmo_measured):
     assert med["contrast"] == pytest.approx(0.767, abs=0.005)
     assert med["edge_density"] == pytest.approx(0.237, abs=0.005)
     assert med["vignetting"] == pytest.approx(VIGNETTING_REAL, abs=0.005)
+    assert med["aim_offset"] == pytest.approx(0.215, abs=0.005)
     assert med["instances"] == 8
     assert np.nanmedian(r.instances["distance"]) == pytest.approx(0.988, abs=0.005)
 
@@ -293,6 +295,17 @@ def test_elevation_and_inplane_read_back_the_camera_that_made_them(az, el, d, ro
         assert geometry.inplane(up) == pytest.approx(roll, abs=1e-6)
     elif abs(el) > 80.001:
         assert math.isnan(geometry.inplane(up))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0, 1), st.floats(0.05, 0.95), st.floats(0.05, 0.95))
+def test_aim_offset_reads_back_the_offset_a_camera_was_drawn_with(seed, f, cx, cy):
+    """What compare measures (and fit proposes) is what ``cameras.aim_offset`` draws."""
+    intr = Intrinsics(width=640, height=480, fx=572.0, fy=580.0, cx=cx * 639, cy=cy * 479)
+    target = np.array([0.3, -0.1, 0.05])
+    s = sample_camera(np.random.default_rng(seed), target, Cameras(distance=(0.5, 1.2), aim_offset=(f, f)), intr)
+    K = [[intr.fx, 0, intr.cx], [0, intr.fy, intr.cy], [0, 0, 1]]
+    assert geometry.aim_fraction(s.R_w2c @ target + s.t_w2c, K, 640, 480) == pytest.approx(f, abs=1e-7)
 
 
 @settings(max_examples=60, deadline=None)

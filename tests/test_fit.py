@@ -156,7 +156,7 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
     out, doc = _fitted(tmp_path, str(spec), probe=4)
     fitted = load_spec(out, []).spec.model_dump(mode="json")
     original = load_spec(spec, []).spec.model_dump(mode="json")
-    edited = {"cameras": {"distance", "elevation", "elevation_sampling", "inplane"}, "visibility": {"threshold"},
+    edited = {"cameras": {"distance", "elevation", "elevation_sampling", "inplane", "aim_offset"}, "visibility": {"threshold"},
               "sensor": {"exposure", "blur", "shot_noise", "contrast", "saturation", "sharpening", "vignetting"},
               "outputs": {"image_format"}}
     for section, value in original.items():
@@ -176,11 +176,12 @@ def test_the_fitted_spec_validates_and_keeps_everything_it_does_not_fit(tmp_path
         refitted = line.split("#", 1)[-1].strip().startswith("fit:")  # an earlier fit's note is replaced
         if "#" in line and not refitted and not line.strip().startswith(("elevation", "distance", "threshold", "image_format")):
             assert line.split("#", 1)[1].strip() in text, line
-    for field in ("elevation:", "distance:", "inplane:", "threshold:", "exposure:", "shot_noise:"):
+    for field in ("elevation:", "distance:", "inplane:", "aim_offset:", "threshold:", "exposure:", "shot_noise:"):
         assert any(ln.strip().startswith(field) and "# fit: " in ln for ln in text.splitlines()), field
     real = json.loads((resolve_ref("dataset:lmo/test", cache_dir()) / "000002" / "scene_gt.json").read_text())
     assert len(real) == 200
     assert doc["cameras"]["elevation"][0] >= 5 and doc["cameras"]["distance"][1] <= 1.5
+    assert doc["cameras"]["aim_offset"] == [0.05, 0.41]  # docs/compare.md: the real split's 5-95 %
     assert "Traceback" not in capsys.readouterr().err
 
 
@@ -212,8 +213,30 @@ def test_a_fitted_spec_built_small_moves_its_geometry_toward_the_real_split(tmp_
         capsys.readouterr()
         assert main(["compare", str(tmp_path / name), "dataset:lmo/test", "--json", "--jobs", "2"]) == 0
         distances[name] = json.loads(capsys.readouterr().out)["statistics"]
-    for stat in ("elevation", "distance"):
+    for stat in ("elevation", "distance", "aim_offset"):
         assert distances["fitted"][stat]["distance"] < distances["original"][stat]["distance"], stat
+
+
+def test_fit_gives_the_spec_the_real_cameras_intrinsics(tmp_path, capsys):
+    """A spec made for another camera gets the one the real images were taken with (LM-O's
+    camera.json), on every field, before anything is probed; a spec that has it is left alone."""
+    lines = [("intrinsics: {width: 320, height: 240, fx: 280.0, fy: 281.0, cx: 159.5, cy: 119.5}"
+              if ln.startswith("intrinsics:") else ln) for ln in (ROOT / "specs" / "lmo_bl.yaml").read_text().splitlines()]
+    (tmp_path / "other").mkdir()
+    spec = tmp_path / "other" / "lmo_bl.yaml"
+    spec.write_text("\n".join(lines) + "\n")
+    out, doc = _fitted(tmp_path, str(spec), probe=0)
+    assert doc["intrinsics"] == {"width": 640, "height": 480, "fx": 572.4114, "fy": 573.57043, "cx": 325.2611,
+                                 "cy": 242.04899}
+    assert "fit: the camera of 200 of 200 real images in dataset:lmo/test" in out.read_text()
+    assert load_spec(out, []).spec.intrinsics.fx == 572.4114
+    same = load_spec(ROOT / "specs" / "lmo_bl.yaml", []).spec.intrinsics
+    cams = [(np.array([[same.fx, 0, same.cx], [0, same.fy, same.cy], [0, 0, 1]]), same.width, same.height)] * 3
+    assert fit.intrinsics_edits(cams, same, "x") == []
+    other = [(np.array([[500.0, 0, 300], [0, 501, 200], [0, 0, 1]]), 600, 400)]
+    got = {e.field: e.value for e in fit.intrinsics_edits(cams[:1] + other * 2, same, "x")}
+    assert got == {"intrinsics.width": 600, "intrinsics.height": 400, "intrinsics.fx": 500.0, "intrinsics.fy": 501.0,
+                   "intrinsics.cx": 300.0, "intrinsics.cy": 200.0}
 
 
 @pytest.mark.parametrize("law", ["angle", "area"])

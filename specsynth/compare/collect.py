@@ -35,7 +35,7 @@ CHUNK = 16
 class Collected:
     """Columns of numbers, one row per image / visible instance / measured object."""
 
-    images: dict[str, np.ndarray] = field(default_factory=dict)  # IMAGE_STATS + inplane, instances
+    images: dict[str, np.ndarray] = field(default_factory=dict)  # IMAGE_STATS + inplane, aim_offset, instances
     # obj_id + INSTANCE_STATS, and where each instance is: its image's row and its centre offset
     instances: dict[str, np.ndarray] = field(default_factory=dict)
     objects: dict[str, np.ndarray] = field(default_factory=dict)  # obj_id + OBJECT_STATS, and its image's row
@@ -89,7 +89,18 @@ def measure_image(im: SplitImage, use_world_up: bool, with_objects: bool) -> dic
                 if s is not None:
                     row["objects"].append((inst.obj_id, *(s[name] for name in OBJECT_STATS)))
     row["n_instances"] = n
+    row["aim_offset"] = _aim_offset(im)
     return row
+
+
+def _aim_offset(im: SplitImage) -> float:
+    """The aim fraction of the visible instance nearest the image centre: the object a specsynth
+    camera aims at (``geometry.aim_fraction``); nan without one."""
+    seen = [i for i in im.instances if i.px_count_visib]
+    if not seen:
+        return math.nan
+    nearest = min(seen, key=lambda i: geometry.centre_offset(i.t_m2c, im.K))
+    return geometry.aim_fraction(nearest.t_m2c, im.K, im.width, im.height)
 
 
 def _batches(split: Split, step: int, picks: set[int], samples: list[str]):
@@ -143,12 +154,13 @@ def collect(split: Split, jobs: int = 0, max_object_images: int = MAX_OBJECT_IMA
     picks = set(np.linspace(0, n - 1, min(n_samples, n)).round().astype(int).tolist()) if n else set()
     jobs = jobs or min(len(os.sched_getaffinity(0)), 8)
     out = Collected(n_images=n, up="world" if split.synthetic else "objects")
-    images: dict[str, list] = {k: [] for k in (*IMAGE_STATS, "inplane", "instances")}
+    images: dict[str, list] = {k: [] for k in (*IMAGE_STATS, "inplane", "aim_offset", "instances")}
     inst, obj, per_image, obj_per_image = array("d"), array("d"), [], []  # 8 bytes a number, not a Python float
     for r in _rows(_batches(split, step, picks, out.samples), split.synthetic, jobs if n > CHUNK else 1):
         for k in IMAGE_STATS:
             images[k].append(r["image"][k])
         images["inplane"].append(r["inplane"])
+        images["aim_offset"].append(r["aim_offset"])
         images["instances"].append(r["n_instances"])
         for t in r["instances"]:
             inst.extend(t)

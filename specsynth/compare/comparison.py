@@ -13,6 +13,7 @@ STATISTICS: dict[str, tuple[str, str, str, str]] = {
     "distance": ("geometry", "instances", "m", "camera distance to the object"),
     "elevation": ("geometry", "instances", "deg", "camera elevation above the objects' plane"),
     "inplane": ("geometry", "images", "deg", "in-plane rotation of the image"),
+    "aim_offset": ("geometry", "images", "", "offset of the object nearest the centre (1 = on the image's ellipse)"),
     "size": ("geometry", "instances", "px", "object size (sqrt of its amodal box area)"),
     "truncation": ("geometry", "instances", "", "share of the object's box outside the image"),
     "visib_fract": ("geometry", "instances", "", "visible fraction"),

@@ -1,8 +1,10 @@
 """From the real statistics to spec edits: what ``specsynth fit`` proposes.
 
-Geometry comes from the real split alone: the camera's distance and elevation ranges are the 5th
+Geometry comes from the real split alone: the intrinsics those of the camera most real images
+were taken with; the camera's distance and elevation ranges are the 5th
 to 95th percentiles over the real images of the object nearest each image's centre (the one a
-specsynth camera would have aimed at), the in-plane range the images' own, and the visibility
+specsynth camera would have aimed at), the in-plane range the images' own, the aim offset where
+that object sits in its image, and the visibility
 threshold the 10th percentile of every real instance's visible fraction. The sensor (exposure, tone
 curve, saturation, blur, noise, image format) is fitted to a *probe*: a few images of the spec
 rendered with a neutral sensor, which the sensor's own operations (``Camera.develop``: those of
@@ -95,6 +97,12 @@ def geometry_edits(real: Collected, source: str) -> list[Edit]:
     if r["n"]:
         out.append(Edit("cameras.inplane", _range(ims["inplane"], 5, 95, 1.0, -360, 360),
                         f"fit: real in-plane rotation 5-95 % {r['p5']:.0f}-{r['p95']:.0f} deg in {source}"))
+    off = np.asarray(ims.get("aim_offset", ()), np.float64)
+    if np.isfinite(off).any():
+        o = summary(off)
+        out.append(Edit("cameras.aim_offset", _range(np.minimum(off, 1.0), 5, 95, 0.01, 0.0, 1.0),
+                        f"fit: the object nearest the centre sits 5-95 % {o['p5']:.2f}-{o['p95']:.2f} of the way to "
+                        f"the image's ellipse (median {o['median']:.2f}) in {source}"))
     vis = np.asarray(inst["visib_fract"], np.float64)
     if len(vis):
         t = float(np.clip(round(np.percentile(vis, VISIB_QUANTILE) / 0.05) * 0.05, 0.05, 0.9))
@@ -102,6 +110,26 @@ def geometry_edits(real: Collected, source: str) -> list[Edit]:
                         f"fit: {VISIB_QUANTILE} % of real visible instances are less visible than "
                         f"{np.percentile(vis, VISIB_QUANTILE):.2f} (median {v['median']:.2f}) in {source}"))
     return out
+
+
+CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy")
+
+
+def intrinsics_edits(cameras, spec_intrinsics, source: str) -> list[Edit]:
+    """The real images' camera as the spec's ``intrinsics``: ``cameras`` gives each real image's
+    (K, width, height); the one most images share is proposed, nothing when the spec has it."""
+    from collections import Counter
+
+    seen = Counter((int(w), int(h), *(round(float(v), 6) for v in (K[0][0], K[1][1], K[0][2], K[1][2])))
+                   for K, w, h in cameras)
+    if not seen:
+        return []
+    best, n = seen.most_common(1)[0]
+    real = dict(zip(CAMERA_FIELDS, best))
+    if all(abs(float(getattr(spec_intrinsics, k)) - v) <= 1e-6 * max(1.0, abs(v)) for k, v in real.items()):
+        return []
+    note = f"fit: the camera of {n} of {sum(seen.values())} real images in {source}"
+    return [Edit(f"intrinsics.{k}", v, note) for k, v in real.items()]
 
 
 # ---------------------------------------------------------------------- the sensor, on a probe

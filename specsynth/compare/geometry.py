@@ -48,6 +48,22 @@ def centre_offset(t_m2c, K) -> float:
     return float(np.hypot(u - K[0, 2], v - K[1, 2]))
 
 
+def aim_fraction(t_m2c, K, width: int, height: int) -> float:
+    """Where the model's origin projects, as the spec's ``cameras.aim_offset`` measures it: 0 at
+    the principal point, 1 on the largest ellipse about it inside the image (inf behind the
+    camera; above 1 outside that ellipse)."""
+    t = np.asarray(t_m2c, np.float64)
+    if t[2] <= 0:
+        return float("inf")
+    K = np.asarray(K, np.float64)
+    cx, cy = K[0, 2], K[1, 2]
+    a, b = min(cx, width - 1 - cx), min(cy, height - 1 - cy)
+    if a <= 0 or b <= 0:
+        return float("nan")
+    du, dv = K[0, 0] * t[0] / t[2] / a, K[1, 1] * t[1] / t[2] / b
+    return float(np.hypot(du, dv))
+
+
 def distance(t_m2c) -> float:
     """Distance from the camera centre to the model's origin (BOP: its bounding-box centre), m."""
     return float(np.linalg.norm(np.asarray(t_m2c, np.float64)))
