@@ -5,6 +5,7 @@ so its labels must ignore distractors; the flat example plugin draws them)."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from PIL import Image
 
 from specsynth.assets.library import textures
 from specsynth.assets.library.cache import cache_dir
+from specsynth.assets.library.realsets import resolve_ref
 from specsynth.model.records import ArrangementRecord
 from specsynth.plan.compiler import compile_spec
 from specsynth.run.build import build
@@ -314,3 +316,67 @@ def test_paint_colour_is_a_plastic_colour_drawn_with_its_share(seed, share, satu
             continue  # a grey has no hue
         # a toy's hue: within the jitter of one of the palette's (on the hue circle)
         assert min(abs((h - hue + 0.5) % 1.0 - 0.5) for hue, _ in PLASTIC_HUES) <= PLASTIC_HUE_JITTER + 1e-4
+
+
+FOLDER_SPEC = SPEC.replace('distractors: {count: [4, 4], objects: ["random_urdfs/*", teddy]}',
+                           'distractors: {count: [3, 3], paths: [MODELS]}').replace(
+    "backend: {name: photo}", "backend: {name: flat}")
+
+
+def _folder_spec(tmp_path: Path, models: str) -> Path:
+    f = tmp_path / "dr.yaml"
+    f.write_text(FOLDER_SPEC.replace("MODELS", models))
+    return f
+
+
+def test_distractors_from_a_bop_folder_drop_render_and_are_not_annotated(tmp_path):
+    """The BOP recipes' distractors from another dataset: a BOP models folder's models drawn, settled
+    by physics, drawn in the scene (occluding), never annotated; the list alone, without the
+    built-in shapes."""
+    from specsynth.assets import bopdistractors
+
+    f = _folder_spec(tmp_path, "dataset:lmo/models")
+    g = compile_spec(load_spec(f))
+    assert g.spec.arrangements.distractors.objects == []
+    s = build(g, tmp_path / "out", jobs=1)
+    assert not s.failures, s.failures
+    store = Store(tmp_path / "out")
+    recs = [ArrangementRecord.from_json(store.load("arrange", k)) for k in store.keys("arrange")]
+    dropped = [d for r in recs for d in r.distractors]
+    assert len(dropped) >= 4  # 6 dropped; one may leave the stage
+    assert {bopdistractors.parse(d.name)[0] for d in dropped} == {0}
+    assert {bopdistractors.parse(d.name)[1] for d in dropped} <= {1, 5, 6, 8, 9, 10, 11, 12}
+    assert all(np.asarray(d.pose)[2, 3] > -1.0 for d in dropped)
+    world = World(g.inputs.arrange, f.parent)
+    extra = [m for m in world.render_scene(recs[0]).meshes if m.name.startswith("distractor_")]
+    assert len(extra) == len(recs[0].distractors) and all(m.obj_id is None for m in extra)
+    from specsynth.assets.meshio import read_mesh
+
+    ape = read_mesh(extra[0].mesh_path).vertices  # millimetres read as metres would be 1000 times larger
+    assert 0.02 < float(np.ptp(ape, axis=0).max()) < 0.3
+    gt = json.loads((tmp_path / "out" / "bop" / "train_pbr" / "000000" / "scene_gt.json").read_text())
+    assert {i["obj_id"] for v in gt.values() for i in v} <= {1, 2}
+
+
+def test_a_distractor_folders_bytes_key_the_arrangements_and_its_errors_are_located(tmp_path):
+    lmo = Path(resolve_ref("dataset:lmo/models", cache_dir()))
+    mine = tmp_path / "models"
+    shutil.copytree(lmo, mine)
+    f = _folder_spec(tmp_path, "models")
+    before = compile_spec(load_spec(f)).arrange_job(0).key
+    with (mine / "obj_000005.ply").open("ab") as fh:
+        fh.write(b"\n")
+    assert compile_spec(load_spec(f)).arrange_job(0).key != before
+    f.write_text(FOLDER_SPEC.replace("MODELS", "nowhere"))
+    with pytest.raises(SpecError) as e:
+        compile_spec(load_spec(f))
+    (pr,) = e.value.problems
+    assert pr.line == 12 and pr.path == "arrangements.distractors.paths.0" and "nowhere" in pr.message
+    f.write_text(FOLDER_SPEC.replace("MODELS", "models").replace("paths: [models]", "paths: [models], annotate: true"))
+    with pytest.raises(SpecError) as e:
+        load_spec(f)
+    assert e.value.problems[0].line == 12 and "annotate" in e.value.problems[0].message
+    f.write_text(FOLDER_SPEC.replace("paths: [MODELS]", "objects: []"))
+    with pytest.raises(SpecError) as e:
+        load_spec(f)
+    assert "objects or paths" in e.value.problems[0].message

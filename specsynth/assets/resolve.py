@@ -620,6 +620,11 @@ def _sources(objects: spec_mod.Objects, spec_dir: Path) -> list[_Source]:
     return sorted(out, key=lambda s: s.obj_id)
 
 
+def bop_folder_ids(objects: spec_mod.Objects, spec_dir: Path) -> list[int]:
+    """The obj ids of ``objects.path``, a BOP models folder, checked as a build reads it."""
+    return _bop_folder(objects, Path(spec_dir))[1]
+
+
 def object_fingerprints(objects: spec_mod.Objects, spec_dir: Path) -> dict[str, str]:
     """name -> content hash of each object's source files (+ unit, conversion version). Fast."""
     return {s.name: s.fingerprint() for s in _sources(objects, spec_dir)}

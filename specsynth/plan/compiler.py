@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
+from ..assets import bopdistractors
 from ..assets.resolve import (
     AssetError,
     bop_folder_notes,
@@ -338,6 +339,10 @@ def compile_spec(loaded: LoadedSpec) -> JobGraph:
             check_texture(tex, field)
         except AssetError as e:
             problems.append(loaded.locate(field, str(e)))
+    distractor_prints, folder_problems = bopdistractors.fingerprints(spec.arrangements.distractors.paths,
+                                                                     loaded.directory)
+    asset_hashes.update({f"asset:{k}": v for k, v in distractor_prints.items()})
+    problems += [loaded.locate(e.field, str(e).removeprefix(f"{e.field}: ")) for e in folder_problems]
     known = set(builtin_objects()) | set(catalogue_objects()) | {"random_urdfs/*", "catalogue/*"}
     for k, name in enumerate(spec.arrangements.distractors.objects):
         if name not in known:

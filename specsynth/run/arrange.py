@@ -56,7 +56,8 @@ class ArrangeStep:
         drop: list[ObjectAsset] = []
         for m in models:
             drop += [m] * int(rng.integers(lo, hi + 1))
-        distractors = world.distractor_assets(draw_distractors(inp.arrangements.distractors, rng))
+        distractors = world.distractor_assets(draw_distractors(inp.arrangements.distractors, rng,
+                                                               world.distractor_folder_models()))
         # Standing, as things stand on a desk: a distractor with no free spot is left out, not stacked.
         unstacked = len(distractors) if inp.arrangements.placement == "stand" else 0
         result = arrange(scene, stage, drop + distractors, inp.arrangements, inp.objects.orientation, rng,
@@ -157,22 +158,14 @@ def swapped_credits(world: World, rec: ArrangementRecord, ref: SceneRef) -> list
     return [by_path[t].credit for t in used]
 
 
-def draw_distractors(d, rng: np.random.Generator) -> list[str]:
-    """The built-in objects dropped as distractors in one arrangement: each uniform over the named
-    ones and the members of the wildcards (pybullet_data's 1000 random shapes, the library's small
-    items)."""
+def draw_distractors(d, rng: np.random.Generator, folder_models: list[str] = ()) -> list[str]:
+    """The objects dropped as distractors in one arrangement: each uniform over the named ones, the
+    members of the wildcards (pybullet_data's 1000 random shapes, the library's small items) and
+    ``folder_models``, the models of the BOP folders in ``d.paths``."""
     lo, hi = d.count
     n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
     pool = [o for o in d.objects if not o.endswith("/*")]
-    wild = "random_urdfs/*" in d.objects
-    catalogue = catalogue_objects() if "catalogue/*" in d.objects else []
-    out = []
-    for _ in range(n):
-        k = int(rng.integers(len(pool) + (1000 if wild else 0) + len(catalogue)))
-        if k < len(pool):
-            out.append(pool[k])
-        elif wild and k < len(pool) + 1000:
-            out.append(f"random_urdfs/{k - len(pool):03d}")
-        else:
-            out.append(catalogue[k - len(pool) - (1000 if wild else 0)])
-    return out
+    pool += [f"random_urdfs/{k:03d}" for k in range(1000)] if "random_urdfs/*" in d.objects else []
+    pool += catalogue_objects() if "catalogue/*" in d.objects else []
+    pool += list(folder_models)
+    return [pool[int(rng.integers(len(pool)))] for _ in range(n)]

@@ -14,6 +14,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from ..assets import bopdistractors
 from ..assets.resolve import ObjectAsset, resolve_objects
 from ..model import lens
 from ..model.ir import CameraIR, MeshInstance, RenderScene, as_tuple
@@ -69,6 +70,7 @@ class World:
         self._scenes: dict[tuple[str, int | None], SceneDesc] = {}
         self._distractors: dict[str, ObjectAsset] = {}
         self._has_uv: dict[str, bool] = {}
+        self._folder_models: list[str] | None = None
 
     def assets(self, materials: Materials = None) -> list[ObjectAsset]:
         """The spec's objects, dressed in ``materials`` (the spec's ``objects.materials``)."""
@@ -134,12 +136,24 @@ class World:
         """The assets of the drawn distractors, in order; a name drawn twice is one asset twice
         (resolved once: resolving a list that names a model twice is refused)."""
         missing = list(dict.fromkeys(n for n in names if n not in self._distractors))
-        if missing:
+        folder = [n for n in missing if n.startswith(bopdistractors.PREFIX)]
+        builtin = [n for n in missing if not n.startswith(bopdistractors.PREFIX)]
+        if folder:
+            self._distractors.update(bopdistractors.assets(folder, self.inputs.arrangements.distractors.paths,
+                                                           self.spec_dir))
+        if builtin:
             from ..spec.models import Objects
 
-            for a in resolve_objects(Objects(builtin=missing), self.spec_dir):
+            for a in resolve_objects(Objects(builtin=builtin), self.spec_dir):
                 self._distractors[a.name] = a
         return [self._distractors[n] for n in names]
+
+    def distractor_folder_models(self) -> list[str]:
+        """The models of the BOP folders distractors are drawn from (listed once per worker)."""
+        if self._folder_models is None:
+            self._folder_models = bopdistractors.model_names(self.inputs.arrangements.distractors.paths,
+                                                             self.spec_dir)
+        return self._folder_models
 
     def _distractor_meshes(self, placed: list[PlacedObject]) -> tuple[MeshInstance, ...]:
         """Distractors are scene geometry (``obj_id`` None): drawn, occluding, never annotated."""

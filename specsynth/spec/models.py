@@ -314,10 +314,17 @@ class Distractors(Strict):
 
     count: IntRange(0) = Field((0, 0), description="Distractors per arrangement, [min, max].")
     objects: list[str] = Field(
-        ["random_urdfs/*"], min_length=1,
+        ["random_urdfs/*"],
         description="Built-in objects to draw from (see specsynth.assets.resolve.builtin_objects): names, "
         "'random_urdfs/*' for pybullet_data's 1000 random shapes, 'catalogue/*' for the furniture library's 163 "
-        "small items (books, cups, plants, toys; `specsynth furniture`), or one of them as 'catalogue/<id>'.")
+        "small items (books, cups, plants, toys; `specsynth furniture`), or one of them as 'catalogue/<id>'. "
+        "Empty when `paths` is given and this is not.")
+    paths: list[str] = Field(
+        [], max_length=16,
+        description="BOP models folders (models_info.json and obj_XXXXXX.ply in millimetres, as objects.path; "
+        "relative to the spec, or dataset:NAME/models) whose every model may be drawn as a distractor, with "
+        "`objects`: the BOP recipes' distractors from other datasets (T-LESS, YCB-V, ...). A drawn model is named "
+        "'bop/<k>/obj_XXXXXX' after its folder's place in this list. Not with annotate.")
     paint: float = Field(
         0.0, ge=0.0, le=1.0,
         description="Share of the distractors painted one random plastic colour (a toy's: mostly yellow, red, blue, some "
@@ -340,6 +347,23 @@ class Distractors(Strict):
         if v[1] > MAX_DROPPED:
             raise ValueError(f"at most {MAX_DROPPED} distractors per arrangement")
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _paths_alone(cls, data):
+        """A list of folders without objects means those folders' models only."""
+        if isinstance(data, dict) and data.get("paths") and "objects" not in data:
+            data = {**data, "objects": []}
+        return data
+
+    @model_validator(mode="after")
+    def _something_to_draw(self):
+        if self.count[1] > 0 and not self.objects and not self.paths:
+            raise ValueError("distractors to drop need objects or paths to draw them from")
+        if self.annotate and self.paths:
+            raise ValueError("annotated distractors from BOP folders are not supported: their models keep their own "
+                             "datasets' obj_ids; leave annotate off, or add the folder's models to objects")
+        return self
 
     @model_validator(mode="after")
     def _annotated_catalogue(self):
