@@ -372,6 +372,12 @@ def test_a_distractor_folders_bytes_key_the_arrangements_and_its_errors_are_loca
         compile_spec(load_spec(f))
     (pr,) = e.value.problems
     assert pr.line == 12 and pr.path == "arrangements.distractors.paths.0" and "nowhere" in pr.message
+    (tmp_path / "afile").write_text("x")
+    for given, said in (("afile", "is not a folder"), ("dataset:nope/models", "no installed dataset 'nope'")):
+        f.write_text(FOLDER_SPEC.replace("MODELS", given))
+        with pytest.raises(SpecError) as e:
+            compile_spec(load_spec(f))
+        assert said in e.value.problems[0].message and not e.value.problems[0].message.startswith("arrangements")
     f.write_text(FOLDER_SPEC.replace("MODELS", "models").replace("paths: [models]", "paths: [models], annotate: true"))
     with pytest.raises(SpecError) as e:
         load_spec(f)

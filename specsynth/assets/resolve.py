@@ -521,11 +521,12 @@ def _bop_folder(objects: spec_mod.Objects, spec_dir: Path) -> tuple[Path, list[i
     """(folder, obj ids, a note for the user or None). A folder without ``models_info.json`` gets
     it computed as the BOP toolkit does, cached by the models' content (``bopmodels``)."""
     try:
-        folder = expand_path(objects.path, spec_dir, f"objects.path {objects.path!r}")
+        folder = expand_path(objects.path, spec_dir, repr(objects.path))
     except AssetError as e:
         raise AssetError(str(e), field="objects.path") from None
     if not folder.is_dir():
-        raise AssetError(f"objects.path: BOP models folder {folder} does not exist. {BOP_HELP}", field="objects.path")
+        what = "is not a folder" if os.path.lexists(folder) else "does not exist"
+        raise AssetError(f"objects.path: BOP models folder {folder} {what}. {BOP_HELP}", field="objects.path")
     info = folder / "models_info.json"
     note = None
     if info.is_file():

@@ -319,7 +319,7 @@ class Distractors(Strict):
         "'random_urdfs/*' for pybullet_data's 1000 random shapes, 'catalogue/*' for the furniture library's 163 "
         "small items (books, cups, plants, toys; `specsynth furniture`), or one of them as 'catalogue/<id>'. "
         "Empty when `paths` is given and this is not.")
-    paths: list[str] = Field(
+    paths: list[Annotated[str, Field(min_length=1)]] = Field(
         [], max_length=16,
         description="BOP models folders (models_info.json and obj_XXXXXX.ply in millimetres, as objects.path; "
         "relative to the spec, or dataset:NAME/models) whose every model may be drawn as a distractor, with "
