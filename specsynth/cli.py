@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from .atomic import atomic_write_bytes
-from .files import output_file, read_regular
+from .files import output_file, output_folder, read_regular
 from .spec.yamlio import SpecError, load_spec
 
 SCHEMA_PATH = Path("schemas") / "dataset-spec.schema.json"
@@ -509,6 +509,8 @@ def cmd_compare(args) -> int:
     from .compare.report import table, to_json, write
 
     log = (lambda m: print(m, file=sys.stderr)) if not (args.json or args.quiet) else None
+    if args.out:
+        output_folder(args.out, "--out")  # refused now, not after the measuring
     result, synth, real = run_compare(args.synth, args.real, models=args.models, jobs=args.jobs, log=log,
                                       own_masks=args.own_masks)
     if args.out:
@@ -563,6 +565,7 @@ def cmd_fit(args) -> int:
     out = Path(args.output)
     if out.exists() and not out.is_file():
         raise FileNotFoundError(f"{out}: not a file to write the fitted spec to")
+    output_file(out, "-o")
     real = measure(real_split, args.models, args.jobs, log)
     jobs = args.jobs or os.cpu_count() or 1
     edits = [] if args.keep_cameras else (

@@ -34,6 +34,7 @@ def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:
     if os.path.exists(p) and not os.path.isdir(p):
         kind = (not_a_file(p) or "a file").removesuffix(", not a regular file")
         raise UnsafeOutput(f"{what} {p}: {kind}, not a folder; give a folder to write into")
+    _refuse_a_file_on_the_way(p, what)
     real = Path(os.path.realpath(p))
     if real == real.parent:
         raise UnsafeOutput(f"{what} {p}: the root of the file system; give a folder of its own to write into")
@@ -60,7 +61,19 @@ def output_file(path: str | os.PathLike, what: str) -> Path:
     problem = not_a_file(p)
     if os.path.lexists(p) and problem not in (None, "not found"):
         raise UnsafeOutput(f"{what} {p}: {problem}; give the path of a regular file to write")
+    _refuse_a_file_on_the_way(p.parent, what, p)
     return p
+
+
+def _refuse_a_file_on_the_way(folder: Path, what: str, given: Path | None = None) -> None:
+    """A folder to create must not have a file where one of its parents would be: the command would
+    stop with NotADirectoryError after its work instead of now."""
+    for parent in (folder, *folder.parents):
+        if os.path.exists(parent):
+            if not os.path.isdir(parent):
+                raise UnsafeOutput(f"{what} {given or folder}: {parent} is a file, not a folder; give a folder to "
+                                   "write into")
+            return
 
 
 def not_a_file(path: str | os.PathLike) -> str | None:

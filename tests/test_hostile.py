@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import struct
 import subprocess
 import sys
@@ -687,19 +688,22 @@ def test_export_does_not_quote_an_obj_id(tmp_path):
     gt = out / "bop" / "train_pbr" / "000000" / "scene_gt.json"
     gt.write_text(gt.read_text().replace('"obj_id": 1', '"obj_id": "SECRET"', 1))
     rc, err = export(out, tmp_path / "dest")
-    assert rc == 2 and "obj_id must be an integer" in err and "SECRET" not in err
+    assert rc == 2 and "obj_id must be a positive integer" in err and "SECRET" not in err
 
 
 def test_an_export_that_stopped_half_way_can_be_redone(tmp_path):
-    out = bop_dataset(tmp_path / "out")
+    """An unreadable image stops an export before it writes anything; one interrupted after its
+    first files (no data.yaml yet) is recognised as ours by its marker and done again."""
+    out, dest = bop_dataset(tmp_path / "out"), tmp_path / "dest"
     bad = out / "bop" / "train_pbr" / "000000" / "rgb" / "000003.jpg"
     good = bad.read_bytes()
     bad.write_bytes(b"not a jpeg")
-    rc, err = export(out, tmp_path / "dest")
-    assert rc == 2 and "000003.jpg" in err and any((tmp_path / "dest" / "images").rglob("*.jpg"))
+    rc, err = export(out, dest)
+    assert rc == 2 and "000003.jpg" in err and not dest.exists()
     bad.write_bytes(good)
-    assert export(out, tmp_path / "dest") == (0, "")
-    assert (tmp_path / "dest" / "data.yaml").is_file()
+    assert export(out, dest) == (0, "")
+    (dest / "data.yaml").unlink()  # as an export interrupted before its last file
+    assert export(out, dest) == (0, "") and (dest / "data.yaml").is_file()
 
 
 # --------------------------------------------------------------------------- 4. a failed rebuild
@@ -1141,3 +1145,102 @@ def test_verify_follows_no_link_out_of_the_dataset(built, tmp_path):
     rgb.symlink_to(outside)
     rel = rgb.relative_to(built).as_posix()
     assert rel in verify(built)["missing"]
+
+
+SECRET = "SECRET_VALUE_7f3a"
+CHUNK = "bop/train_pbr/000000"
+
+
+def _edit_json(path: Path, change) -> None:
+    path.write_text(json.dumps(change(json.loads(path.read_text()))))
+
+
+@pytest.mark.parametrize("damage, says", [
+    (lambda c: _edit_json(c / "scene_gt.json", lambda d: {**d, SECRET: d["0"]}), "a key that is not an image id"),
+    (lambda c: _edit_json(c / "scene_gt.json", lambda d: [SECRET]), "expected an object keyed by image id"),
+    (lambda c: _edit_json(c / "scene_gt.json", lambda d: {**d, "00": d["0"]}), "a key that is not an image id"),
+    (lambda c: (c / "scene_gt.json").write_text('{"0": [], "0": [{"obj_id": 1}]}'), "names one key twice"),
+    (lambda c: _edit_json(c / "scene_gt_info.json", lambda d: {**d, "0": [{**d["0"][0], "bbox_visib": SECRET}]}),
+     "bbox_visib must be a list of 4 numbers"),
+    (lambda c: _edit_json(c / "scene_gt_info.json", lambda d: {**d, "0": [{**d["0"][0], "bbox_visib": [1, 2]}]}),
+     "bbox_visib must be a list of 4 numbers"),
+    (lambda c: (c / "scene_gt_info.json").write_text('{"0": [{"bbox_visib": [NaN, 1, 2, 3]}]}'), "bbox_visib"),
+    (lambda c: _edit_json(c / "scene_gt_info.json", lambda d: {**d, "0": [{**d["0"][0], "visib_fract": SECRET}]}),
+     "visib_fract: expected a number in [0, 1]"),
+    (lambda c: _edit_json(c / "scene_gt_info.json", lambda d: {**d, "0": [{"visib_fract": 0.5}]}),
+     "bbox_visib must be a list of 4 numbers"),
+    (lambda c: _edit_json(c / "scene_camera.json", lambda d: {**d, "0": SECRET}), "every image's entry must be an object"),
+    (lambda c: (c / "scene_camera.json").unlink() or os.mkfifo(c / "scene_camera.json"), "not a regular file"),
+    (lambda c: (c / "scene_gt_info.json").unlink() or os.mkfifo(c / "scene_gt_info.json"), "not a regular file"),
+    (lambda c: shutil.copytree(c, c.parent / "abc"), "a chunk folder is named by its number"),
+    (lambda c: shutil.copytree(c, c.parent / "0"), "the same chunk number"),
+])
+@pytest.mark.parametrize("command", ["view", "export"])
+def test_a_damaged_bop_table_is_named_by_view_and_export_before_any_work(tmp_path, damage, says, command):
+    """view and export read a dataset's BOP tables as compare does: a FIFO does not hang them, a
+    damaged entry is named by file and place (never quoted), before anything is drawn or copied."""
+    out = bop_dataset(tmp_path / "out", arrangements=1, views=2)
+    damage(out / CHUNK)
+    dest = tmp_path / ("v.png" if command == "view" else "y")
+    args = ("view", out, "--out", dest) if command == "view" else ("export", "yolo", out, dest)
+    r = cli(*args, timeout=60)
+    assert r.returncode == 2 and says in r.stderr and SECRET not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not dest.exists()
+
+
+def test_export_refuses_a_box_outside_its_image_before_writing(tmp_path):
+    out = bop_dataset(tmp_path / "out", arrangements=1, views=2)
+    _edit_json(out / CHUNK / "scene_gt_info.json", lambda d: {**d, "1": [{**d["1"][0], "bbox_visib": [0, 0, 10**6, 10**6]}]})
+    rc, err = export(out, tmp_path / "y")
+    assert rc == 2 and "image 1, annotation 0: bbox_visib lies outside its 32 x 24 image" in err, err
+    assert not (tmp_path / "y").exists()
+
+
+@pytest.mark.parametrize("categories", [[SECRET], [{"id": SECRET, "name": "x"}], [{"name": "x"}], SECRET])
+def test_export_names_coco_categories_it_cannot_use(tmp_path, categories):
+    out = bop_dataset(tmp_path / "out", arrangements=1, views=1)
+    (out / "coco").mkdir()
+    (out / "coco" / "train_pbr.json").write_text(json.dumps({"categories": categories}))
+    rc, err = export(out, tmp_path / "y")
+    assert rc == 2 and "train_pbr.json: categories must be a list" in err and SECRET not in err, err
+
+
+def test_view_refuses_images_and_masks_from_outside_the_dataset(tmp_path):
+    out = bop_dataset(tmp_path / "out", arrangements=1, views=1)
+    outside = tmp_path / "outside"
+    shutil.move(out / CHUNK / "rgb", outside)
+    (out / CHUNK / "rgb").symlink_to(outside)
+    r = cli("view", out, "--out", tmp_path / "v.png", timeout=60)
+    assert r.returncode == 2 and "a link out of the dataset folder" in r.stderr and not (tmp_path / "v.png").exists()
+
+
+def test_stats_and_diff_name_tables_they_cannot_use(built, tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    images = built / "parquet" / "images.parquet"
+    table = pq.read_table(images)
+    pq.write_table(table.drop(["R_w2c"]), images)
+    r = cli("stats", built, "--out", tmp_path / "s1", timeout=60)
+    assert r.returncode == 2 and "images.parquet: no column 'R_w2c'" in r.stderr, r.stderr
+    pq.write_table(table.slice(0, 0), images)
+    r = cli("stats", built, "--out", tmp_path / "s2", timeout=60)
+    assert r.returncode == 2 and "no images to plot" in r.stderr, r.stderr
+    pq.write_table(table.set_column(table.schema.get_field_index("R_w2c"), "R_w2c",
+                                    pa.array([[1.0, 2.0]] * len(table))), images)
+    r = cli("stats", built, "--out", tmp_path / "s3", timeout=60)
+    assert r.returncode == 2 and "column 'R_w2c': expected lists of 9 numbers" in r.stderr, r.stderr
+    manifest = built / ".specsynth" / "manifest.json"
+    for bad in (["x"], {"x": 1}, {"stage_inputs": [], "jobs": {}}, {"stage_inputs": {}, "jobs": SECRET}):
+        manifest.write_text(json.dumps(bad))
+        r = cli("diff", built, built, timeout=60)
+        assert r.returncode == 2 and "not a manifest specsynth wrote" in r.stderr and SECRET not in r.stderr, r.stderr
+
+
+def test_compare_and_fit_refuse_an_output_under_a_file_before_measuring(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    spec = Path(__file__).resolve().parents[1] / "specs" / "lmo_bl.yaml"
+    for args in (("compare", "dataset:lmo/test", "dataset:lmo/test", "--out", tmp_path / "afile" / "sub"),
+                 ("fit", "dataset:lmo/test", spec, "-o", tmp_path / "afile" / "x.yaml", "--probe-images", "0")):
+        r = cli(*args, timeout=60)
+        assert r.returncode == 2 and "is a file, not a folder" in r.stderr and "computing" not in r.stderr, r.stderr

@@ -6,6 +6,8 @@ Reads only the BOP output (and the build summary), so it works on any BOP-format
 from __future__ import annotations
 
 import json
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,7 +15,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from ..atomic import atomic_write_bytes, atomic_write_via
-from ..files import UnsafeOutput, output_file, output_folder, refuse_links_out
+from ..files import UnsafeOutput, inside, output_file, output_folder, refuse_links_out
 from ..model.error import error_ratio
 
 
@@ -21,9 +23,40 @@ class DatasetFileError(ValueError):
     """A file of a built dataset that cannot be read; the message names it (never its contents)."""
 
 
-def read_json(path: Path):
+MAX_JSON_BYTES = 256 << 20  # a BOP chunk's scene_gt.json of 1,000 crowded images is a few MB
+MAX_BOX = 1 << 20  # pixels: no image is wider; a box beyond it is a damaged file, not an object
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs):
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        raise _DuplicateKey()
+    return dict(pairs)
+
+
+def read_json(path: Path, root: Path | None = None):
+    """A JSON file of a dataset, or an error naming it (never its contents): a regular file (a FIFO
+    would hang the reader), inside ``root`` once links are resolved, of a sane size, every key of
+    an object once."""
+    path = Path(path)
     try:
-        return json.loads(Path(path).read_bytes())
+        st = os.stat(path)
+    except OSError as e:
+        raise DatasetFileError(f"{path}: unreadable JSON ({type(e).__name__})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise DatasetFileError(f"{path}: not a regular file")
+    if root is not None and not inside(path, root):
+        raise DatasetFileError(f"{path}: a link out of the dataset folder {root}")
+    if st.st_size > MAX_JSON_BYTES:
+        raise DatasetFileError(f"{path}: larger than {MAX_JSON_BYTES >> 20} MiB")
+    try:
+        return json.loads(path.read_bytes(), object_pairs_hook=_unique_keys)
+    except _DuplicateKey:
+        raise DatasetFileError(f"{path}: an object names one key twice") from None
     except (OSError, ValueError, RecursionError) as e:  # RecursionError: nested too deep to decode
         raise DatasetFileError(f"{path}: unreadable JSON ({type(e).__name__})") from None
 
@@ -34,17 +67,22 @@ def open_image(path: Path):
         im = Image.open(path)
         im.load()
         return im
-    except (OSError, ValueError, SyntaxError) as e:
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
         raise DatasetFileError(f"{path}: unreadable image ({type(e).__name__})") from None
 
 
-def read_parquet(path: Path):
+def read_parquet(path: Path, columns: tuple[str, ...] = ()):
+    """A Parquet table of a dataset with at least ``columns``, or an error naming what is wrong."""
     import pyarrow.parquet as pq
 
     try:
-        return pq.read_table(path).to_pandas()
+        table = pq.read_table(path).to_pandas()
     except (OSError, ValueError) as e:
         raise DatasetFileError(f"{path}: unreadable Parquet ({type(e).__name__})") from None
+    missing = [c for c in columns if c not in table.columns]
+    if missing:
+        raise DatasetFileError(f"{path}: no column {missing[0]!r}")
+    return table
 
 
 @dataclass(frozen=True)
@@ -53,32 +91,107 @@ class BopImage:
     im_id: int
     rgb: Path
     gt: list[dict]
-    gt_info: list[dict]
+    gt_info: list[dict]  # checked: bbox_visib (4 ints), visib_fract in [0, 1], px_count_visib
     camera: dict
 
     def mask_visib(self, gt_id: int) -> np.ndarray | None:
         p = self.chunk / "mask_visib" / f"{self.im_id:06d}_{gt_id:06d}.png"
-        return np.asarray(open_image(p)) > 127 if p.is_file() else None
+        if not p.is_file():
+            return None
+        if not inside(p, self.chunk):
+            raise DatasetFileError(f"{p}: a link out of the dataset")
+        return np.asarray(open_image(p)) > 127
 
 
 def _split_dirs(out: Path) -> list[Path]:
+    """The chunk folders (``bop/<split>/<chunk>``), each named by its number and inside ``out``."""
     bop = out / "bop" if (out / "bop").is_dir() else out
-    chunks = [p.parent for p in bop.glob("*/*/scene_gt.json")]
-    return sorted(chunks)
+    chunks = sorted(p.parent for p in bop.glob("*/*/scene_gt.json"))
+    seen: dict[tuple[str, int], Path] = {}
+    for chunk in chunks:
+        name = chunk.name
+        if not (name.isascii() and name.isdigit()):
+            raise DatasetFileError(f"{chunk}: a chunk folder is named by its number (000000)")
+        if not inside(chunk, out):
+            raise DatasetFileError(f"{chunk}: a link out of the dataset folder {out}")
+        key = (chunk.parent.name, int(name))
+        if key in seen:
+            raise DatasetFileError(f"{chunk}: the same chunk number as {seen[key]}")
+        seen[key] = chunk
+    return chunks
+
+
+def _image_ids(table, path: Path) -> dict[int, object]:
+    """A BOP per-image table (an object keyed by image id) -> {im_id: value}."""
+    if not isinstance(table, dict):
+        raise DatasetFileError(f"{path}: expected an object keyed by image id")
+    out = {}
+    for k, v in table.items():
+        if not (k.isascii() and k.isdigit() and str(int(k)) == k):
+            raise DatasetFileError(f"{path}: a key that is not an image id (digits, no leading zeros)")
+        out[int(k)] = v
+    return out
+
+
+def _annotations(v, path: Path, im: int) -> list[dict]:
+    if not isinstance(v, list) or not all(isinstance(e, dict) for e in v):
+        raise DatasetFileError(f"{path}: image {im}: expected a list of objects")
+    return v
+
+
+def _number(v, path: Path, where: str, lo: float, hi: float) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo <= v <= hi):  # NaN fails too
+        raise DatasetFileError(f"{path}: {where}: expected a number in [{lo:g}, {hi:g}]")
+    return float(v)
+
+
+def _gt_entry(e: dict, path: Path, where: str) -> dict:
+    oid = e.get("obj_id")
+    if isinstance(oid, bool) or not isinstance(oid, int) or oid < 1:
+        raise DatasetFileError(f"{path}: {where}: obj_id must be a positive integer")
+    return e
+
+
+def _info_entry(e: dict, path: Path, where: str) -> dict:
+    """The gt_info fields the commands read, checked and as numbers (a damaged file is named)."""
+    box = e.get("bbox_visib")
+    if not isinstance(box, list) or len(box) != 4:
+        raise DatasetFileError(f"{path}: {where}: bbox_visib must be a list of 4 numbers")
+    x, y, w, h = (int(_number(b, path, f"{where}.bbox_visib", -MAX_BOX, MAX_BOX)) for b in box)
+    return {**e, "bbox_visib": [x, y, w, h],
+            "visib_fract": _number(e.get("visib_fract", 0.0), path, f"{where}.visib_fract", 0.0, 1.0),
+            "px_count_visib": int(_number(e.get("px_count_visib", 0), path, f"{where}.px_count_visib", 0, MAX_BOX ** 2))}
+
+
+def _chunk_tables(chunk: Path, root: Path) -> tuple[dict, dict, dict]:
+    """scene_gt, scene_gt_info (empty without the file) and scene_camera of a chunk, by image id."""
+    gt_path, info_path, cam_path = (chunk / f for f in ("scene_gt.json", "scene_gt_info.json", "scene_camera.json"))
+    gt = {im: [_gt_entry(e, gt_path, f"image {im}, annotation {j}") for j, e in enumerate(_annotations(v, gt_path, im))]
+          for im, v in _image_ids(read_json(gt_path, root), gt_path).items()}
+    info = {}
+    if os.path.lexists(info_path):  # a FIFO or a link out there is named, not taken for "no file"
+        info = {im: [_info_entry(e, info_path, f"image {im}, annotation {j}")
+                     for j, e in enumerate(_annotations(v, info_path, im))]
+                for im, v in _image_ids(read_json(info_path, root), info_path).items()}
+    cams = _image_ids(read_json(cam_path, root), cam_path)
+    if not all(isinstance(c, dict) for c in cams.values()):
+        raise DatasetFileError(f"{cam_path}: every image's entry must be an object")
+    return gt, info, cams
 
 
 def list_images(out: Path, missing: list[Path] | None = None) -> list[BopImage]:
-    """Every annotated image with an RGB file; those without one are appended to ``missing``."""
+    """Every annotated image with an RGB file; those without one are appended to ``missing``.
+    Every table is checked as it is read: a damaged file is named before any image is drawn."""
     images = []
-    for chunk in _split_dirs(Path(out)):
-        gt = read_json(chunk / "scene_gt.json")
-        info = read_json(chunk / "scene_gt_info.json") if (chunk / "scene_gt_info.json").is_file() else {}
-        cams = read_json(chunk / "scene_camera.json")
-        for k in sorted(gt, key=int):
-            im = int(k)
+    out = Path(out)
+    for chunk in _split_dirs(out):
+        gt, info, cams = _chunk_tables(chunk, out)
+        for im in sorted(gt):
             rgb = next((chunk / "rgb" / f"{im:06d}.{e}" for e in ("jpg", "png") if (chunk / "rgb" / f"{im:06d}.{e}").is_file()), None)
+            if rgb is not None and not inside(rgb, out):  # a view or an export shows the dataset's own images
+                raise DatasetFileError(f"{rgb}: a link out of the dataset folder {out}")
             if rgb is not None:
-                images.append(BopImage(chunk, im, rgb, gt[k], info.get(k, []), cams.get(k, {})))
+                images.append(BopImage(chunk, im, rgb, gt[im], info.get(im, []), cams.get(im, {})))
             elif missing is not None:
                 missing.append(chunk / "rgb" / f"{im:06d}")
     return images
@@ -100,6 +213,9 @@ def annotate_image(img: BopImage) -> Image.Image:
         m = img.mask_visib(gt_id)
         if m is None or not m.any():
             continue
+        if m.shape != base.shape[:2]:
+            raise DatasetFileError(f"{img.chunk / 'mask_visib'}: image {img.im_id}, annotation {gt_id}: the mask is "
+                                   f"{m.shape[1]} x {m.shape[0]}, its image {base.shape[1]} x {base.shape[0]}")
         edge = m & ~(np.roll(m, 1, 0) & np.roll(m, -1, 0) & np.roll(m, 1, 1) & np.roll(m, -1, 1))
         base[edge] = _colour(g["obj_id"])
     im = Image.fromarray(base)
@@ -123,9 +239,11 @@ def _crops(img: BopImage, size: int) -> list[Image.Image]:
     out = []
     for gt_id, info in enumerate(img.gt_info):
         x, y, w, h = info.get("bbox_visib", [-1, -1, -1, -1])
-        if w <= 2 or h <= 2:
+        x0, y0 = max(x, 0), max(y, 0)  # a box past the image crops what of it is in the image
+        x1, y1 = min(x + w + 1, rgb.width), min(y + h + 1, rgb.height)
+        if x1 - x0 <= 3 or y1 - y0 <= 3:
             continue
-        crop = rgb.crop((x, y, x + w + 1, y + h + 1))
+        crop = rgb.crop((x0, y0, x1, y1))
         crop.thumbnail((size, size))
         tile = Image.new("RGB", (size, size), (24, 24, 24))
         tile.paste(crop, ((size - crop.width) // 2, (size - crop.height) // 2))
@@ -148,7 +266,7 @@ def contact_sheet(outs: list[Path], dest: Path, n: int = 8, seed: int = 0, width
     keyed = [{(im.chunk.name, im.im_id): im for im in lst} for lst in lists]
     common = sorted(set.intersection(*(set(k) for k in keyed)))
     if not common:
-        raise ValueError("the outputs share no image ids; build them from the same spec cameras")
+        raise DatasetFileError("the outputs share no image ids; build them from the same spec cameras")
     rng = np.random.default_rng(seed)
     pick = sorted(rng.choice(len(common), size=min(n, len(common)), replace=False))
     rows = []
@@ -198,10 +316,11 @@ def dataset_stats(out: Path, dest: Path) -> dict:
     out, dest = Path(out), output_folder(dest, "--out")
     dest.mkdir(parents=True, exist_ok=True)
     refuse_links_out(dest)
-    images = read_parquet(out / "parquet" / "images.parquet")
-    inst = read_parquet(out / "parquet" / "instances.parquet")
-    summary_path = out / ".specsynth" / "summary.json"
-    summary = read_json(summary_path) if summary_path.is_file() else {}
+    images = read_parquet(out / "parquet" / "images.parquet", ("scene", "stage", "R_w2c"))
+    inst = read_parquet(out / "parquet" / "instances.parquet", ("obj_id", "t_m2c_mm", "px_count_all", "visib_fract"))
+    if not len(images) or not len(inst):
+        raise DatasetFileError(f"{out / 'parquet'}: no {'images' if not len(images) else 'instances'} to plot")
+    summary = _summary(out / ".specsynth" / "summary.json")
 
     table: dict = {
         "images": int(len(images)),
@@ -212,12 +331,14 @@ def dataset_stats(out: Path, dest: Path) -> dict:
         "views_dropped": summary.get("views_dropped"),
         "objects_removed_by_physics": summary.get("objects_removed"),
         "objects_redropped": summary.get("objects_redropped"),
-        "seconds_per_stage": {k: round(v["seconds"], 2) for k, v in summary.get("stages", {}).items()},
+        "seconds_per_stage": {k: round(float(v["seconds"]), 2) for k, v in _object(summary.get("stages")).items()
+                              if isinstance(v, dict) and isinstance(v.get("seconds"), (int, float))},
     }
 
     # Camera distance / elevation from the written poses (camera centre relative to the world Z axis).
-    R = np.stack(images["R_w2c"].to_numpy()).reshape(-1, 3, 3)
-    focus_dist = np.linalg.norm(np.stack(inst["t_m2c_mm"].to_numpy()).reshape(-1, 3), axis=1) / 1000.0
+    R = _stacked(images["R_w2c"], 9, out / "parquet" / "images.parquet", "R_w2c").reshape(-1, 3, 3)
+    focus_dist = np.linalg.norm(_stacked(inst["t_m2c_mm"], 3, out / "parquet" / "instances.parquet", "t_m2c_mm"),
+                                axis=1) / 1000.0
     optical_axis = R[:, 2, :]  # camera z axis in world coordinates
     elevation = np.degrees(np.arcsin(np.clip(-optical_axis[:, 2], -1, 1)))
     obj_px = inst["px_count_all"].to_numpy()
@@ -245,6 +366,31 @@ def dataset_stats(out: Path, dest: Path) -> dict:
     table.update(error_stats(out, dest))
     atomic_write_bytes(dest / "stats.json", (json.dumps(table, indent=2, sort_keys=True) + "\n").encode())
     return table
+
+
+def _summary(path: Path) -> dict:
+    """A build's summary.json, or {} without one; a damaged one is named."""
+    if not os.path.lexists(path):
+        return {}
+    summary = read_json(path, path.parent.parent)
+    if not isinstance(summary, dict):
+        raise DatasetFileError(f"{path}: expected an object")
+    return summary
+
+
+def _object(v) -> dict:
+    return v if isinstance(v, dict) else {}
+
+
+def _stacked(column, width: int, path: Path, name: str) -> np.ndarray:
+    """A column of fixed-length number lists as an (n, width) float array, or an error naming it."""
+    try:
+        a = np.asarray(np.stack([np.asarray(v, np.float64).ravel() for v in column]), np.float64)
+    except (ValueError, TypeError):
+        a = None
+    if a is None or a.ndim != 2 or a.shape[1] != width:
+        raise DatasetFileError(f"{path}: column {name!r}: expected lists of {width} numbers")
+    return a
 
 
 def error_stats(out: Path, dest: Path) -> dict:

@@ -9,7 +9,8 @@ any BOP-format folder. Writes the layout Ultralytics' ``check_det_dataset`` read
 
 DEST follows the rules of a build's ``--out``: a new folder, an empty one or an earlier export,
 with no symbolic link in it leading elsewhere. Everything that could stop an export (options, a
-missing RGB file, a split that leaves nothing to train on) is checked before the first file is
+missing RGB file, an unreadable image, a box outside its image, a split that leaves nothing to
+train on) is checked before the first file is
 written. A stereo build's right eye (``<split>_right``) goes with its left eye, into the same
 YOLO split as the rest of its arrangement.
 
@@ -38,7 +39,7 @@ import yaml
 from ..files import UnsafeOutput, inside, refuse_links_out
 from ..output_api import DatasetWriter, Merge
 from .dataset import coco_box, place_file, write_if_changed
-from .qa import BopImage, list_images
+from .qa import BopImage, list_images, read_json
 
 DEFAULT_MIN_VISIB = 0.1  # the COCO writer's "ignore" threshold: below it a box teaches noise
 RIGHT = "_right"  # a stereo build's right eye: split <split>_right, parquet tables *_right
@@ -70,14 +71,24 @@ def label_text(img: BopImage, class_of: dict[int, int], min_visib: float) -> tup
     """The label file of one image -> (text, boxes written, boxes skipped for low visibility)."""
     width, height = _image_size(img)
     lines, skipped = [], 0
-    for g, info in zip(img.gt, img.gt_info):
+    for j, (g, info) in enumerate(zip(img.gt, img.gt_info)):
         if info.get("px_count_visib", 0) < 1 or info["bbox_visib"][2] < 0:
             continue
         if info.get("visib_fract", 1.0) < min_visib:
             skipped += 1
             continue
+        _check_box(info["bbox_visib"], width, height, img, j)
         lines.append(yolo_line(class_of[obj_id(img, g)], info["bbox_visib"], width, height))
     return "".join(line + "\n" for line in lines), len(lines), skipped
+
+
+def _check_box(box: Sequence[int], width: int, height: int, img: BopImage, j: int) -> None:
+    """A visible box lies in its image (BOP: x + w <= width); one past it was made for another image
+    size and would become a label out of [0, 1]."""
+    x, y, w, h = box
+    if x < 0 or y < 0 or x + w > width or y + h > height:
+        raise ExportError(f"{img.chunk / 'scene_gt_info.json'}: image {img.im_id}, annotation {j}: bbox_visib lies "
+                          f"outside its {width} x {height} image {img.rgb.name}")
 
 
 def _image_size(img: BopImage) -> tuple[int, int]:
@@ -86,7 +97,7 @@ def _image_size(img: BopImage) -> tuple[int, int]:
     try:
         with Image.open(img.rgb) as im:
             return im.size
-    except (OSError, ValueError, SyntaxError) as e:  # PIL's ways of saying "not an image"
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:  # PIL's ways of saying "not an image"
         raise ExportError(f"{img.rgb}: unreadable image ({type(e).__name__})") from None
 
 
@@ -96,14 +107,31 @@ def class_names(out: Path, images: Sequence[BopImage]) -> dict[int, str]:
     bop = out / "bop"
     ids: set[int] = {obj_id(img, g) for img in images for g in img.gt}
     info = bop / "models" / "models_info.json"
-    if info.is_file():
-        ids |= {int(k) for k in _read_json(info)}
+    if os.path.lexists(info):
+        ids |= _model_ids(read_json(info, out), info)
     names = {i: f"obj_{i:06d}" for i in sorted(ids)}
     for coco in sorted((out / "coco").glob("*.json")):
-        for cat in _read_json(coco).get("categories", []):
-            if int(cat["id"]) in names:
-                names[int(cat["id"])] = str(cat["name"])
+        for oid, name in _categories(read_json(coco, out), coco):
+            if oid in names:
+                names[oid] = name
     return names
+
+
+def _model_ids(info, path: Path) -> set[int]:
+    if not isinstance(info, dict) or not all(k.isascii() and k.isdigit() for k in info):
+        raise ExportError(f"{path}: expected an object keyed by obj_id")
+    return {int(k) for k in info}
+
+
+def _categories(coco, path: Path) -> list[tuple[int, str]]:
+    """(id, name) of a COCO file's categories, or an error naming the file (never its values)."""
+    cats = coco.get("categories", []) if isinstance(coco, dict) else None
+    ok = isinstance(cats, list) and all(
+        isinstance(c, dict) and isinstance(c.get("id"), int) and not isinstance(c.get("id"), bool)
+        and isinstance(c.get("name"), str) for c in cats)
+    if not ok:
+        raise ExportError(f"{path}: categories must be a list of objects with an integer id and a name")
+    return [(c["id"], c["name"]) for c in cats]
 
 
 def obj_id(img: BopImage, gt: dict) -> int:
@@ -114,13 +142,6 @@ def obj_id(img: BopImage, gt: dict) -> int:
     return value
 
 
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError, RecursionError) as e:
-        raise ExportError(f"{path}: unreadable JSON ({type(e).__name__})") from None
-
-
 def arrangement_of(out: Path) -> dict[str, int]:
     """rgb path (relative to OUT) -> arrangement, from the Parquet images table when it exists,
     so that a held-out split never shares an arrangement with the training split."""
@@ -129,7 +150,11 @@ def arrangement_of(out: Path) -> dict[str, int]:
     found: dict[str, int] = {}
     for table in (out / "parquet" / "images.parquet", out / "parquet" / f"images{RIGHT}.parquet"):
         if table.is_file():
-            t = pq.read_table(table, columns=["rgb", "arr"]).to_pydict()
+            try:
+                t = pq.read_table(table, columns=["rgb", "arr"]).to_pydict()
+            except (OSError, ValueError, KeyError) as e:  # pyarrow's ArrowInvalid is a ValueError
+                raise ExportError(f"{table}: unreadable images table, or without its rgb and arr columns "
+                                  f"({type(e).__name__})") from None
             found.update(zip(t["rgb"], t["arr"]))
     return found
 
@@ -213,6 +238,11 @@ def export_yolo(
 ) -> YoloSummary:
     out, dest = Path(out), Path(dest)
     _check_options(min_visib, val_fraction)
+    for path, what in ((out, "the dataset"), (dest, "the destination")):
+        try:  # data.yaml names both; a name that is not UTF-8 would stop the export half-way
+            os.fspath(path.resolve()).encode("utf-8")
+        except UnicodeEncodeError:
+            raise ExportError(f"{what}'s path is not valid UTF-8; rename it") from None
     if not (out / "bop").is_dir():
         raise ExportError(f"{out}: no bop/ folder (build with outputs.bop: true)")
     _check_dest(dest, out)
@@ -231,6 +261,11 @@ def _export(out: Path, dest: Path, *, min_visib: float, val_split: str | None, v
         raise ExportError(f"{out / 'bop'}: no images")
     _check_own_files(images, out)
     splits = {img.chunk.parent.name for img in images}
+    for split in splits:
+        try:
+            split.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ExportError(f"{out / 'bop'}: a split folder's name is not valid UTF-8; rename it") from None
     if val_split is not None and val_split not in splits:
         raise ExportError(f"--val {val_split!r}: no such split in {out / 'bop'} (have {', '.join(sorted(splits))})")
 
@@ -251,12 +286,12 @@ def _export(out: Path, dest: Path, *, min_visib: float, val_split: str | None, v
     placed = [_yolo_split(img, val_split, val_groups, group_of) for img in images]
     _check_training_left(placed, val_split, val_fraction, len(set(groups)))
     summary = YoloSummary(names={class_of[i]: n for i, n in names.items()})
+    labels = [label_text(img, class_of, min_visib) for img in images]  # a bad box stops it before any write
     keep: dict[str, set[str]] = defaultdict(set)
     dest.mkdir(parents=True, exist_ok=True)
     write_if_changed(dest / MARKER, b"specsynth export yolo\n")
-    for img, split in zip(images, placed):
+    for img, split, (text, n, skipped) in zip(images, placed, labels):
         stem = f"{img.chunk.parent.name}_{int(img.chunk.name):06d}_{img.im_id:06d}"
-        text, n, skipped = label_text(img, class_of, min_visib)
         place_file(img.rgb, dest / "images" / split / (stem + img.rgb.suffix.lower()))
         write_if_changed(dest / "labels" / split / f"{stem}.txt", text.encode())
         keep[split] |= {stem + img.rgb.suffix.lower(), f"{stem}.txt"}

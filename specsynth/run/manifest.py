@@ -63,9 +63,25 @@ def read_manifest(out: Path) -> dict[str, Any]:
     if not p.is_file():
         raise FileNotFoundError(f"{out}: not a specsynth output folder (no .specsynth/manifest.json)")
     try:
-        return json.loads(p.read_bytes())
+        manifest = json.loads(p.read_bytes())
     except (ValueError, RecursionError) as e:
         raise FileNotFoundError(f"{p}: unreadable manifest ({type(e).__name__}); rebuild to rewrite it") from None
+    if not _manifest_shaped(manifest):
+        raise FileNotFoundError(f"{p}: not a manifest specsynth wrote (stage_inputs and jobs: per stage, names to "
+                                "digests); rebuild to rewrite it")
+    return manifest
+
+
+def _manifest_shaped(m) -> bool:
+    """What ``diff`` reads of a manifest: per stage, names to strings, in both of its tables."""
+    if not isinstance(m, dict):
+        return False
+    for table in ("stage_inputs", "jobs"):
+        t = m.get(table)
+        if not isinstance(t, dict) or not all(
+                isinstance(v, dict) and all(isinstance(x, str) for x in v.values()) for v in t.values()):
+            return False
+    return True
 
 
 def diff(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
