@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -341,6 +342,44 @@ def test_every_statistic_has_a_documented_definition():
     (lambda d: (d / "models/obj_000009.ply").unlink(), "no model for obj_id 9"),
     (lambda d: _edit_gt(d, lambda gt: gt[sorted(gt, key=int)[0]][0].update(obj_id="SECRET")), ".obj_id: expected an integer"),
     (lambda d: shutil.rmtree(d / "test/000002") or (d / "test/000002").mkdir(), "000002/scene_gt.json: scene_gt.json not found"),
+    # a model that is a FIFO had hung compare; a folder there had failed in the reader
+    (lambda d: _replace(d / "models/obj_000001.ply", os.mkfifo), "obj_000001.ply: model is not a regular file"),
+    (lambda d: _replace(d / "models/obj_000001.ply", os.mkdir), "obj_000001.ply: model is not a regular file"),
+    (lambda d: _edit_gt(d, lambda gt: gt.update({k: [] for k in gt})), "no annotated instances"),
+    (lambda d: _edit_gt(d, lambda gt: gt.update({_first(gt): gt[_first(gt)] * 126})), "more than 1000 instances in one image"),
+    (lambda d: _edit_gt(d, lambda gt: gt[_first(gt)][0].update(cam_t_m2c=[0, 0, 1e12])), "[0].cam_t_m2c: farther than"),
+    # images that claim gigapixels in a few bytes, or cannot be read as what they are
+    (lambda d: _png_claiming(_first_rgb(d), 20000, 20000), "the image claims more than 89,478,485 pixels"),
+    (lambda d: _depth(d, lambda p: _png_claiming(p, 20000, 20000)), "the depth image claims more than"),
+    (lambda d: _depth(d, lambda p: Image.new("RGB", (640, 480)).save(p)), "a depth image must be one channel of 16 bits"),
+    (lambda d: _depth(d, lambda p: p.write_bytes(b"")), ".png: not a readable depth image"),
+    (lambda d: _exif_rotated(d), "the image has an EXIF orientation other than 1"),
+    # folders linked out of the dataset
+    (lambda d: _link_out(d, "test/000002/rgb"), "rgb: the image folder is a link out of the dataset folder"),
+    (lambda d: _link_out(d, "models"), "obj_000001.ply: model is a link out of the dataset folder"),
+    (lambda d: (d.parent / "masks").mkdir() or (d / "test/000002/mask_visib").symlink_to(d.parent / "masks"),
+     "mask_visib: the mask folder is a link out of the dataset folder"),
+    # one image named twice
+    (lambda d: _edit_gt(d, lambda gt: gt.update({"0" + _first(gt): gt[_first(gt)]})), "a key that is not a canonical image id"),
+    (lambda d: _edit_gt(d, lambda gt: gt.update({"\u0663": gt[_first(gt)]})), "a key that is not a canonical image id"),
+    (lambda d: shutil.copytree(d / "test/000002", d / "test" / ("\u0660" * 5 + "\u0662")), "non-ASCII digits"),
+    (lambda d: Image.open(_first_rgb(d)).save(_first_rgb(d).with_suffix(".jpg")), "a second file of image"),
+    (lambda d: _duplicate_key(d), "scene_gt.json: an object names one key twice"),
+    # a split with masks or gt info has them for every instance
+    (lambda d: (d / "test/000002/mask_visib").mkdir(), "_000000.png: mask not found"),
+    (lambda d: _write_info(d, lambda info: info.pop(_first(info))), "scene_gt_info.json: no entry for image"),
+    # numbers out of any camera's or scene's range
+    (lambda d: _write_info(d, lambda info: info[_first(info)][0].update(bbox_obj=[0, 0, 10**15, 10**15])),
+     "[0].bbox_obj: expected coordinates within 1e+07 pixels"),
+    (lambda d: _write_info(d, lambda info: info[_first(info)][0].update(visib_fract=1.5)), "[0].visib_fract: expected 0 to 1"),
+    (lambda d: _edit_camera(d, fx=1e300), "camera.json: camera.fx: expected 0.001 to 1e+06 pixels"),
+    (lambda d: _edit_camera(d, fy=1e-300), "camera.json: camera.fy: expected 0.001 to 1e+06 pixels"),
+    (lambda d: _edit_camera(d, cx=-1e7), "camera.json: camera.cx: expected -1e+06 to 1e+06 pixels"),
+    (lambda d: _edit_camera(d, height=None), "camera.json: camera: missing height"),
+    (lambda d: _edit_camera(d, depth_scale=0), "camera.json: depth_scale: expected a depth scale above 0"),
+    (lambda d: _edit_camera(d, depth_scale=1e4), "camera.json: depth_scale: expected a depth scale above 0"),
+    (lambda d: _edit_camera(d, depth_scale=float("inf")), "camera.json: depth_scale: not a finite number"),
+    (lambda d: _scene_cameras(d, cam_K=[572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 2]), "cam_K: the last row must be 0, 0, 1"),
 ])
 def test_a_broken_real_split_is_refused_before_any_work(lmo_root, tmp_path, capsys, break_it, message):
     data = small_split(lmo_root, tmp_path / "lmo")
@@ -357,6 +396,156 @@ def _edit_gt(d: Path, fn) -> None:
     gt = json.loads(p.read_text())
     fn(gt)
     p.write_text(json.dumps(gt))
+
+
+def _first(table: dict) -> str:
+    """The first image's key of a BOP scene table."""
+    return sorted(table, key=int)[0]
+
+
+def _first_rgb(d: Path) -> Path:
+    return sorted((d / "test/000002/rgb").glob("*.png"))[0]
+
+
+def _replace(path: Path, make) -> None:
+    path.unlink()
+    make(path)
+
+
+def _png_claiming(path: Path, width: int, height: int) -> None:
+    """A PNG header claiming width x height grey pixels, and no pixels: PIL judges a bomb by its header."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IEND", b""))
+
+
+def _depth(d: Path, make) -> None:
+    """A depth folder holding the first image's depth, made by ``make(path)``."""
+    (d / "test/000002/depth").mkdir()
+    make(d / "test/000002/depth" / _first_rgb(d).name)
+
+
+def _exif_rotated(d: Path) -> None:
+    """The first image as a JPEG tagged to be shown turned a quarter (EXIF orientation 6)."""
+    rgb = _first_rgb(d)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.open(rgb).save(rgb.with_suffix(".jpg"), exif=exif.tobytes())
+    rgb.unlink()
+
+
+def _link_out(d: Path, rel: str) -> None:
+    """``d/rel`` moved out of the dataset, a link to it in its place."""
+    outside = d.parent / "outside" / Path(rel).name
+    outside.parent.mkdir(exist_ok=True)
+    shutil.move(d / rel, outside)
+    (d / rel).symlink_to(outside, target_is_directory=True)
+
+
+def _duplicate_key(d: Path) -> None:
+    p = d / "test/000002/scene_gt.json"
+    text = p.read_text()
+    p.write_text('{"%s": [], ' % _first(json.loads(text)) + text.lstrip()[1:])
+
+
+def _write_info(d: Path, change) -> None:
+    """A scene_gt_info.json with a plausible entry for every instance, then ``change``d."""
+    gt = json.loads((d / "test/000002/scene_gt.json").read_text())
+    e = {"bbox_obj": [10, 10, 50, 50], "bbox_visib": [10, 10, 50, 50], "px_count_all": 2500, "px_count_visib": 2000,
+         "visib_fract": 0.8}
+    info = {k: [dict(e) for _ in v] for k, v in gt.items()}
+    change(info)
+    (d / "test/000002/scene_gt_info.json").write_text(json.dumps(info))
+
+
+def _edit_camera(d: Path, **change) -> None:
+    """camera.json with fields changed (None: removed)."""
+    cam = json.loads((d / "camera.json").read_text())
+    cam.update(change)
+    (d / "camera.json").write_text(json.dumps({k: v for k, v in cam.items() if v is not None}))
+
+
+def _scene_cameras(d: Path, **entry) -> None:
+    gt = json.loads((d / "test/000002/scene_gt.json").read_text())
+    (d / "test/000002/scene_camera.json").write_text(json.dumps({k: entry for k in gt}))
+
+
+@pytest.mark.parametrize("break_mask, message", [
+    (lambda p: Image.new("L", (320, 240)).save(p), "the mask is 320 x 240 pixels, its image 640 x 480"),
+    (lambda p: Image.open(p).convert("RGB").save(p), "a mask must be one 8-bit channel"),
+    (lambda p: _png_claiming(p, 20000, 20000), "the mask claims more than"),
+])
+def test_a_bad_mask_is_named_not_skipped(lmo_root, tmp_path, capsys, break_mask, message):
+    """A mask is read when its object is measured: one of the wrong size or kind had been skipped
+    without a word (its object's look left out of the statistics)."""
+    data = small_split(lmo_root, tmp_path / "lmo", n=6)
+    computed = complete(open_split(str(data / "test")))
+    scene = data / "test" / "000002"
+    shutil.copytree(computed.computed / "000002" / "mask_visib", scene / "mask_visib")
+    shutil.copy(computed.computed / "000002" / "scene_gt_info.json", scene)
+    info = json.loads((scene / "scene_gt_info.json").read_text())
+    k = next(k for k, e in enumerate(info[_first(info)]) if e["px_count_visib"])  # a measured instance
+    mask = scene / "mask_visib" / f"{int(_first(info)):06d}_{k:06d}.png"
+    break_mask(mask)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(data / "test"), str(data / "test"), "--jobs", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{mask}: {message}" in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+def test_a_16_bit_grey_image_is_read_scaled_to_8_bits(tmp_path):
+    """PIL's conversion of a 16-bit grey image to RGB clips it at 255: nearly all of it white."""
+    from specsynth.compare.collect import _read_rgb
+
+    grey = np.arange(256, dtype=np.uint8).repeat(4).reshape(32, 32)
+    Image.fromarray(grey.astype(np.uint16) * 257).save(tmp_path / "grey16.png")
+    np.testing.assert_array_equal(_read_rgb(tmp_path / "grey16.png"), np.repeat(grey[..., None], 3, axis=2))
+
+
+def test_the_computed_masks_cache_follows_the_depth_scale(lmo_root, tmp_path):
+    """Masks computed against the split's depth images depend on how those read as millimetres:
+    a changed depth_scale alone had reused the masks of the old one."""
+    from specsynth.compare import gtinfo
+    from specsynth.compare.split import check_models
+
+    data = small_split(lmo_root, tmp_path / "lmo", n=2)
+    (data / "test/000002/depth").mkdir()
+    for rgb in (data / "test/000002/rgb").iterdir():
+        Image.fromarray(np.full((480, 640), 1000, np.uint16)).save(data / "test/000002/depth" / rgb.name)
+
+    def key(scale: float) -> str:
+        _edit_camera(data, depth_scale=scale)
+        s = open_split(str(data / "test"))
+        assert gtinfo._uses_depth(s)
+        return gtinfo._key(s, check_models(s, s.models), True)
+
+    assert key(1.0) != key(0.1)
+    assert key(1.0) == key(1.0)
+
+
+def test_a_dataset_reference_stays_inside_the_installed_folder(lmo_root, tmp_path, capsys):
+    """``dataset:lmo//abs/path`` had named any folder, and a link inside a set may point anywhere."""
+    from specsynth.assets.library.realsets import RealSetError
+
+    data = small_split(lmo_root, tmp_path / "lmo", n=2)
+    for ref in (f"dataset:lmo/{data}/test", "dataset:lmo//test", "dataset:lmo/../.."):
+        with pytest.raises(RealSetError, match="may not leave the dataset's folder"):
+            resolve_ref(ref, cache_dir())
+    assert main(["compare", f"dataset:lmo/{data}/test", "dataset:lmo/test"]) == 2
+    assert "may not leave the dataset's folder" in capsys.readouterr().err
+    cache = tmp_path / "cache"
+    (cache / "datasets/lmo").mkdir(parents=True)
+    (cache / "datasets/lmo/manifest.json").write_text("{}")
+    (cache / "datasets/lmo/test").symlink_to(data / "test")
+    with pytest.raises(RealSetError, match="may not leave the dataset's folder"):
+        resolve_ref("dataset:lmo/test", cache)
+    assert resolve_ref("dataset:lmo/models/", cache_dir()) == lmo_root / "models"
 
 
 def test_an_empty_folder_is_refused(tmp_path, capsys):

