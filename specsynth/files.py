@@ -9,7 +9,9 @@
 from __future__ import annotations
 
 import errno
+import json
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -156,3 +158,27 @@ def refuse_links_out(folder: Path) -> None:
                                        f"{os.path.realpath(entry.path)}); remove it or give another folder")
             elif entry.is_dir(follow_symlinks=False):
                 todo.append(entry.path)
+
+
+class RepeatedKey(ValueError):
+    """A JSON object that names one key twice (``json.loads`` keeps the last without a word)."""
+
+
+def _once(pairs: list) -> dict:
+    d = dict(pairs)
+    if len(d) != len(pairs):
+        raise RepeatedKey()
+    return d
+
+
+def loads_json_strict(data: bytes):
+    """JSON read from a user's file, every key of an object once (:class:`RepeatedKey` otherwise)."""
+    return json.loads(data, object_pairs_hook=_once)
+
+
+_IMAGE_ID = re.compile(r"0|[1-9][0-9]{0,8}")  # as BOP writes them: "3" and "03" must not both name image 3
+
+
+def is_image_id(key) -> bool:
+    """Whether a BOP table's key is an image id as BOP writes it: ASCII digits, no leading zero."""
+    return isinstance(key, str) and _IMAGE_ID.fullmatch(key) is not None

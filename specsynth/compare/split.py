@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files import RepeatedKey, is_image_id, loads_json_strict
+
 SCENE_DIR = re.compile(r"^[0-9]{6}$")
 LOOKS_LIKE_SCENE = re.compile(r"^\d{6}$")  # any Unicode digits: "٠٠٠٠٠٢" would be scene 2 to int()
-IMAGE_ID = re.compile(r"^(0|[1-9][0-9]{0,8})$")  # as BOP writes them: "3" and "03" must not both name image 3
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 MAX_JSON_BYTES = 1 << 30  # a scene_gt.json of a million images is ~300 MB
 MAX_IMAGES = 10_000_000
@@ -145,26 +146,14 @@ def _read_json(path: Path, root: Path, what: str):
     if path.stat().st_size > MAX_JSON_BYTES:
         raise SplitError(f"{path}: {what} is larger than {MAX_JSON_BYTES >> 20} MiB")
     try:
-        return json.loads(path.read_bytes(), object_pairs_hook=_unique_keys)
-    except _DuplicateKey:
+        return loads_json_strict(path.read_bytes())
+    except RepeatedKey:
         raise SplitError(f"{path}: an object names one key twice (which entry is meant?)") from None
     except (ValueError, UnicodeDecodeError) as e:
         where = f" (line {e.lineno})" if hasattr(e, "lineno") else ""
         raise SplitError(f"{path}: not valid JSON{where}") from None
     except RecursionError:
         raise SplitError(f"{path}: JSON nested too deep to read") from None
-
-
-class _DuplicateKey(Exception):
-    pass
-
-
-def _unique_keys(pairs: list) -> dict:
-    """A JSON object as a dict; json.loads keeps the last of a repeated key without a word."""
-    d = dict(pairs)
-    if len(d) != len(pairs):
-        raise _DuplicateKey
-    return d
 
 
 def _number(v, path: Path, where: str) -> float:
@@ -209,7 +198,7 @@ def _int(v, path: Path, where: str, lo: int = 0) -> int:
 
 
 def _image_key(k: str, path: Path) -> int:
-    if not IMAGE_ID.match(k):
+    if not is_image_id(k):
         raise SplitError(f"{path}: a key that is not a canonical image id (ASCII digits, no leading zeros)")
     return int(k)
 

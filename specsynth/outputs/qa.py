@@ -15,7 +15,8 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from ..atomic import atomic_write_bytes, atomic_write_via
-from ..files import UnsafeOutput, inside, output_file, output_folder, refuse_links_out
+from ..files import (RepeatedKey, UnsafeOutput, inside, is_image_id, loads_json_strict, output_file, output_folder,
+                     refuse_links_out)
 from ..model.error import error_ratio
 
 
@@ -25,17 +26,6 @@ class DatasetFileError(ValueError):
 
 MAX_JSON_BYTES = 256 << 20  # a BOP chunk's scene_gt.json of 1,000 crowded images is a few MB
 MAX_BOX = 1 << 20  # pixels: no image is wider; a box beyond it is a damaged file, not an object
-
-
-class _DuplicateKey(ValueError):
-    pass
-
-
-def _unique_keys(pairs):
-    keys = [k for k, _ in pairs]
-    if len(set(keys)) != len(keys):
-        raise _DuplicateKey()
-    return dict(pairs)
 
 
 def read_json(path: Path, root: Path | None = None):
@@ -54,8 +44,8 @@ def read_json(path: Path, root: Path | None = None):
     if st.st_size > MAX_JSON_BYTES:
         raise DatasetFileError(f"{path}: larger than {MAX_JSON_BYTES >> 20} MiB")
     try:
-        return json.loads(path.read_bytes(), object_pairs_hook=_unique_keys)
-    except _DuplicateKey:
+        return loads_json_strict(path.read_bytes())
+    except RepeatedKey:
         raise DatasetFileError(f"{path}: an object names one key twice") from None
     except (OSError, ValueError, RecursionError) as e:  # RecursionError: nested too deep to decode
         raise DatasetFileError(f"{path}: unreadable JSON ({type(e).__name__})") from None
@@ -127,7 +117,7 @@ def _image_ids(table, path: Path) -> dict[int, object]:
         raise DatasetFileError(f"{path}: expected an object keyed by image id")
     out = {}
     for k, v in table.items():
-        if not (k.isascii() and k.isdigit() and str(int(k)) == k):
+        if not is_image_id(k):
             raise DatasetFileError(f"{path}: a key that is not an image id (digits, no leading zeros)")
         out[int(k)] = v
     return out
